@@ -1,0 +1,12 @@
+"""Every figure of the lab; notebooks call one function per figure.
+
+Plot functions take ``ax=None`` (or ``fig=None`` for multi-panel figures), return the
+matplotlib figure or axes, never call ``plt.show()`` and change no global style at import.
+Submodules group the figures by topic: ``camera``, ``kinematics``, ``scene``, ``detection``,
+``control`` and ``study``.
+"""
+
+from . import camera, control, detection, kinematics, scene, study
+from ._common import save_figure
+
+__all__ = ["camera", "control", "detection", "kinematics", "scene", "study", "save_figure"]

@@ -1,0 +1,1 @@
+"""Figures for the camera part of the lab (filled in by its module's work)."""
