@@ -1,0 +1,416 @@
+"""Pinhole camera with Brown–Conrady lens distortion.
+
+Conventions (stated once, pinned by tests against ``cv2.projectPoints``):
+
+* Camera optical frame as OpenCV: x right, y down, z forward (along the optical axis).
+* Pixel centres have integer coordinates; the image centre of a W×H image is
+  ((W − 1)/2, (H − 1)/2).
+* Normalised image coordinates are (x/z, y/z); the paper's (û, v̂, 1)ᵀ = K⁻¹(u, v, 1)ᵀ.
+* Distortion coefficients follow OpenCV's normalised convention and order
+  (k1, k2, p1, p2, k3)::
+
+      r² = x² + y²
+      x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²)
+      y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y
+
+Notes
+-----
+Paper §3.2 (pinhole model, K) and §4.1 (Brown–Conrady radial distortion of the simulated camera).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "Intrinsics",
+    "BrownConrady",
+    "project",
+    "distort",
+    "undistort",
+    "backproject",
+    "undistort_pixels",
+    "distort_pixels",
+    "UndistortionError",
+]
+
+
+class UndistortionError(ValueError):
+    """Raised when a distorted point has no preimage in the model's monotonic region."""
+
+
+def _finite_float(name: str, value) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{name} must be finite, got {out}")
+    return out
+
+
+def _as_points(name: str, array, dim: int) -> np.ndarray:
+    """Return ``array`` as a float (N, dim) array; a single point of shape (dim,) is accepted."""
+    arr = np.asarray(array, dtype=float)
+    if arr.ndim == 1 and arr.shape[0] == dim:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ValueError(f"{name} must have shape (N, {dim}) or ({dim},), got {np.shape(array)}")
+    return arr
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of a camera without skew.
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths in pixels (> 0).
+    cx, cy : float
+        Principal point in pixels (OpenCV convention: pixel centres are integers).
+    width, height : int
+        Image size in pixels (> 0).
+
+    Examples
+    --------
+    >>> cam = Intrinsics.from_fov(640, 480, math.radians(60))
+    >>> round(cam.fx, 2), cam.cx, cam.cy
+    (554.26, 319.5, 239.5)
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        for name in ("fx", "fy", "cx", "cy"):
+            value = _finite_float(name, getattr(self, name))
+            object.__setattr__(self, name, value)
+        for name in ("fx", "fy"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0 px, got {getattr(self, name)}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not float(value).is_integer() or value <= 0:
+                raise ValueError(f"{name} must be a positive integer number of pixels, got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_rad: float) -> "Intrinsics":
+        """Square pixels, principal point at the image centre, horizontal field of view ``hfov_rad``.
+
+        fx = fy = (W/2) / tan(hfov/2), cx = (W − 1)/2, cy = (H − 1)/2.
+        """
+        hfov_rad = _finite_float("hfov_rad", hfov_rad)
+        if not 0.0 < hfov_rad < math.pi:
+            raise ValueError(f"hfov_rad must be in (0, pi), got {hfov_rad}")
+        f = (width / 2.0) / math.tan(hfov_rad / 2.0)
+        return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
+
+    @classmethod
+    def default(cls) -> "Intrinsics":
+        """The study's camera: 640 × 480 px, 60° horizontal field of view (fx = fy ≈ 554.26 px)."""
+        return cls.from_fov(640, 480, math.radians(60.0))
+
+    @property
+    def K(self) -> np.ndarray:
+        """The 3 × 3 intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels, the order OpenCV expects."""
+        return (self.width, self.height)
+
+    def to_normalised(self, uv_px) -> np.ndarray:
+        """Pixel coordinates (N, 2) → normalised coordinates (N, 2): ((u − cx)/fx, (v − cy)/fy)."""
+        uv = _as_points("uv_px", uv_px, 2)
+        return np.column_stack(((uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy))
+
+    def to_pixels(self, xy_norm) -> np.ndarray:
+        """Normalised coordinates (N, 2) → pixel coordinates (N, 2)."""
+        xy = _as_points("xy_norm", xy_norm, 2)
+        return np.column_stack((self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy))
+
+
+@dataclass(frozen=True)
+class BrownConrady:
+    """Brown–Conrady lens distortion in OpenCV's normalised convention and order.
+
+    Parameters
+    ----------
+    k1, k2, k3 : float
+        Radial coefficients (k1 < 0: barrel, k1 > 0: pincushion).
+    p1, p2 : float
+        Tangential (decentring) coefficients.
+
+    Notes
+    -----
+    The model acts on normalised coordinates (x/z, y/z); see the module docstring for the
+    formula. Paper §4.1 uses the radial part; the study's default adds a small tangential term.
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    def __post_init__(self):
+        for name in ("k1", "k2", "p1", "p2", "k3"):
+            object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+
+    @classmethod
+    def default(cls) -> "BrownConrady":
+        """The study's distorted camera (DESIGN.md): mild barrel with a small tangential term."""
+        return cls(k1=-0.25, k2=0.12, p1=-0.00028, p2=-0.00005, k3=0.0)
+
+    @classmethod
+    def from_gazebo_legacy(cls, k1, k2, k3, p1, p2, intrinsics: Intrinsics) -> "BrownConrady":
+        """Convert Gazebo-classic "legacy" coefficients to OpenCV's normalised convention.
+
+        Gazebo's legacy mode distorts texture-space coordinates ``(u − cx)/S`` with
+        S = max(W, H) instead of normalised coordinates ``(u − cx)/f``. Writing the legacy
+        coordinate as x·(f/S) and matching powers gives, exactly,
+        k1·(f/S)², k2·(f/S)⁴, k3·(f/S)⁶ and p·(f/S).
+
+        Parameters
+        ----------
+        k1, k2, k3, p1, p2 : float
+            Legacy coefficients, in Gazebo's SDF order.
+        intrinsics : Intrinsics
+            The camera; needs square pixels (fx == fy), as Gazebo's cameras have.
+        """
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError("intrinsics must be an Intrinsics")
+        if not math.isclose(intrinsics.fx, intrinsics.fy, rel_tol=1e-12):
+            raise ValueError(
+                f"from_gazebo_legacy needs square pixels (fx == fy), got fx={intrinsics.fx}, fy={intrinsics.fy}"
+            )
+        s = intrinsics.fx / max(intrinsics.width, intrinsics.height)
+        vals = {n: _finite_float(n, v) for n, v in dict(k1=k1, k2=k2, k3=k3, p1=p1, p2=p2).items()}
+        return cls(
+            k1=vals["k1"] * s**2,
+            k2=vals["k2"] * s**4,
+            p1=vals["p1"] * s,
+            p2=vals["p2"] * s,
+            k3=vals["k3"] * s**6,
+        )
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """(k1, k2, p1, p2, k3) as an array of shape (5,), ready for OpenCV."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+    @property
+    def is_identity(self) -> bool:
+        """True when every coefficient is zero."""
+        return not np.any(self.coefficients)
+
+    def radial_limit(self) -> float:
+        """Largest undistorted radius r (normalised) up to which the radial map r ↦ r·L(r) rises.
+
+        The radial part folds over where d/dr [r (1 + k1 r² + k2 r⁴ + k3 r⁶)] = 0, i.e. at the
+        smallest positive root of 1 + 3 k1 s + 5 k2 s² + 7 k3 s³ (s = r²). Returns ``inf`` when
+        the map rises everywhere.
+        """
+        roots = np.roots([7 * self.k3, 5 * self.k2, 3 * self.k1, 1.0])
+        real = roots[np.isreal(roots)].real
+        positive = real[real > 0]
+        return float(np.sqrt(positive.min())) if positive.size else math.inf
+
+
+def _check_distortion(distortion) -> BrownConrady | None:
+    if distortion is None:
+        return None
+    if not isinstance(distortion, BrownConrady):
+        raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+    return None if distortion.is_identity else distortion
+
+
+def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
+    """Apply the Brown–Conrady model to normalised coordinates.
+
+    Parameters
+    ----------
+    xy_norm : array_like, shape (N, 2) or (2,)
+        Undistorted normalised coordinates (x/z, y/z).
+    distortion : BrownConrady or None
+        None (or all zeros) returns the input unchanged.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Distorted normalised coordinates.
+    """
+    xy = _as_points("xy_norm", xy_norm, 2)
+    d = _check_distortion(distortion)
+    if d is None:
+        return xy.copy()
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+    xd = x * radial + 2.0 * d.p1 * x * y + d.p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + d.p1 * (r2 + 2.0 * y * y) + 2.0 * d.p2 * x * y
+    return np.column_stack((xd, yd))
+
+
+def _distort_jacobian(x, y, d: BrownConrady):
+    """Partial derivatives of (x_d, y_d) with respect to (x, y), each of shape (N,)."""
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+    dradial_dr2 = d.k1 + r2 * (2.0 * d.k2 + 3.0 * d.k3 * r2)
+    dxx = radial + 2.0 * x * x * dradial_dr2 + 2.0 * d.p1 * y + 6.0 * d.p2 * x
+    dxy = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y
+    dyx = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y
+    dyy = radial + 2.0 * y * y * dradial_dr2 + 6.0 * d.p1 * y + 2.0 * d.p2 * x
+    return dxx, dxy, dyx, dyy
+
+
+def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    """Invert the Brown–Conrady model on normalised coordinates (vectorised Newton iteration).
+
+    Parameters
+    ----------
+    xy_norm : array_like, shape (N, 2) or (2,)
+        Distorted normalised coordinates.
+    distortion : BrownConrady or None
+        None (or all zeros) returns the input unchanged.
+    tol : float
+        Convergence threshold on the residual |distort(x) − x_d| (normalised units).
+    max_iter : int
+        Newton iterations at most.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Undistorted coordinates x with distort(x) = x_d, inside the model's monotonic region.
+
+    Raises
+    ------
+    UndistortionError
+        When a point has no preimage inside the monotonic region (the model folds over there),
+        or the iteration does not converge. The message counts the failing points.
+    """
+    xd = _as_points("xy_norm", xy_norm, 2)
+    d = _check_distortion(distortion)
+    if d is None:
+        return xd.copy()
+    if not np.all(np.isfinite(xd)):
+        raise ValueError("xy_norm must be finite")
+    r_limit = d.radial_limit()
+    x = xd.copy()
+    converged = np.zeros(len(xd), dtype=bool)
+    for _ in range(max_iter):
+        residual = distort(x, d) - xd
+        err = np.hypot(residual[:, 0], residual[:, 1])
+        converged = err < tol
+        if converged.all():
+            break
+        dxx, dxy, dyx, dyy = _distort_jacobian(x[:, 0], x[:, 1], d)
+        det = dxx * dyy - dxy * dyx
+        safe = np.abs(det) > 1e-300
+        det = np.where(safe, det, 1.0)
+        step_x = (dyy * residual[:, 0] - dxy * residual[:, 1]) / det
+        step_y = (-dyx * residual[:, 0] + dxx * residual[:, 1]) / det
+        step = np.column_stack((step_x, step_y))
+        step[converged | ~safe] = 0.0
+        trial = x - step
+        # Keep iterates inside the monotonic disc: halve steps that leave it.
+        for _ in range(30):
+            outside = np.hypot(trial[:, 0], trial[:, 1]) >= r_limit
+            if not outside.any():
+                break
+            step[outside] *= 0.5
+            trial = x - step
+        x = trial
+    residual = distort(x, d) - xd
+    err = np.hypot(residual[:, 0], residual[:, 1])
+    inside = np.hypot(x[:, 0], x[:, 1]) < r_limit
+    dxx, dxy, dyx, dyy = _distort_jacobian(x[:, 0], x[:, 1], d)
+    bad = ~((err < max(tol, 1e-11)) & inside & (dxx * dyy - dxy * dyx > 0))
+    if bad.any():
+        worst = np.hypot(xd[bad, 0], xd[bad, 1]).max()
+        raise UndistortionError(
+            f"{int(bad.sum())} of {len(xd)} points have no preimage in the distortion model's "
+            f"monotonic region (undistorted radius < {r_limit:.4g}); largest distorted radius "
+            f"among them {worst:.4g} (normalised). The model folds over there."
+        )
+    return x
+
+
+def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None = None) -> np.ndarray:
+    """Project 3-D points in the camera optical frame to pixels.
+
+    Parameters
+    ----------
+    points_cam : array_like, shape (N, 3) or (3,)
+        Points in the OpenCV camera frame (x right, y down, z forward), metres.
+    intrinsics : Intrinsics
+    distortion : BrownConrady, optional
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Pixel coordinates (u, v); rows for points with z ≤ 0 (behind the camera) are NaN.
+
+    Notes
+    -----
+    Paper §3.2: u = f_u x/z + u0, v = f_v y/z + v0, with Brown–Conrady distortion applied to
+    (x/z, y/z) first when given. Agrees with ``cv2.projectPoints`` (tested).
+    """
+    pts = _as_points("points_cam", points_cam, 3)
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError("intrinsics must be an Intrinsics")
+    z = pts[:, 2]
+    front = z > 0
+    xy = np.full((len(pts), 2), np.nan)
+    xy[front] = pts[front, :2] / z[front, None]
+    out = np.full((len(pts), 2), np.nan)
+    if front.any():
+        out[front] = intrinsics.to_pixels(distort(xy[front], distortion))
+    return out
+
+
+def backproject(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None = None) -> np.ndarray:
+    """Rays through pixels, as (û, v̂, 1): K⁻¹(u, v, 1)ᵀ after undistortion when a model is given.
+
+    Parameters
+    ----------
+    uv_px : array_like, shape (N, 2) or (2,)
+        Pixel coordinates.
+    intrinsics : Intrinsics
+    distortion : BrownConrady, optional
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Rays in the camera frame with z = 1 (the paper's normalised image coordinates, §3.2.1).
+    """
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError("intrinsics must be an Intrinsics")
+    xy = undistort(intrinsics.to_normalised(uv_px), distortion)
+    return np.column_stack((xy, np.ones(len(xy))))
+
+
+def undistort_pixels(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None) -> np.ndarray:
+    """Pixels of the distorted camera → pixels of the ideal pinhole camera with the same K.
+
+    Returns an array of shape (N, 2).
+    """
+    return intrinsics.to_pixels(undistort(intrinsics.to_normalised(uv_px), distortion))
+
+
+def distort_pixels(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None) -> np.ndarray:
+    """Pixels of the ideal pinhole camera → pixels of the distorted camera with the same K.
+
+    Returns an array of shape (N, 2).
+    """
+    return intrinsics.to_pixels(distort(intrinsics.to_normalised(uv_px), distortion))
