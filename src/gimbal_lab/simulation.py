@@ -1,0 +1,417 @@
+"""The closed tracking loop of the study (paper §4.1, Fig. 5).
+
+trajectory → render (with lens distortion) → detect → localise → (active) outer image loop →
+inner rate loops → gimbal axes → forward kinematics → next camera pose.
+
+The inner loop and the axis dynamics run at ``inner_rate_hz`` (1 kHz by default); the camera
+takes a frame every 1/fps seconds. A detection made on frame k reaches the outer loop
+``latency_frames`` frames later. In passive mode the gimbal is stabilised at its home pose (rate
+references zero); in active mode the outer loop turns the target's pixel offset from the image
+centre into joint-rate references.
+
+Every frame's estimate is mapped to the world through the camera extrinsics at the instant the
+frame was taken, and compared with the truth: the metric is |d_est − d_true|, with d the distance
+from the camera's optical centre to the target's centre (paper §4.1).
+
+Rendering needs an OpenGL context: a process that ran :func:`simulate` must not fork
+(see :mod:`gimbal_lab.scene`); :mod:`gimbal_lab.experiments` runs configs on spawned workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+import pandas as pd
+
+from .camera import BrownConrady, Intrinsics, project
+from .trajectories import Trajectory, target_pose
+
+__all__ = ["TrackingConfig", "TrackingResult", "simulate"]
+
+_TARGETS = ("sphere", "aruco")
+_MODES = ("passive", "active")
+_DISTORTIONS = ("none", "default")
+_SPHERE_METHODS = ("circle", "ellipse")
+_REFINEMENTS = ("none", "subpix", "contour", "apriltag")
+
+
+def _positive(name, value, integer=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+    if integer:
+        if not v.is_integer():
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        return int(v)
+    return v
+
+
+def _choice(name, value, allowed):
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """One run of the study. Defaults are DESIGN.md's fixed parameters.
+
+    Parameters
+    ----------
+    target : {"sphere", "aruco"}
+    distortion : {"none", "default"} or BrownConrady
+        The lens; "default" is :meth:`BrownConrady.default`.
+    trajectory : {"circular", "diagonal"}
+    mode : {"passive", "active"}
+    revolutions : float
+        Number of periods simulated (> 0; the paper: 10).
+    period_s : float
+        Period of the trajectory (paper: 2 s).
+    fps : float
+        Camera frame rate (30).
+    width, height : int
+        Image size in pixels (640 × 480).
+    hfov_rad : float
+        Horizontal field of view (60°).
+    inner_rate_hz : float
+        Rate of the inner loop and of the axis integration (1 kHz).
+    latency_frames : int
+        Frames between taking an image and its detection reaching the outer loop (≥ 0; 1).
+    sphere_method : {"circle", "ellipse"}
+        Paper's enclosing-circle estimate, or the exact cone (ellipse) method.
+    aruco_refinement : {"none", "subpix", "contour", "apriltag"}
+        OpenCV corner refinement (the paper does not say; OpenCV's default is none).
+    calibrated : bool
+        True: the estimators know the lens model (undistort contours / pass coefficients to
+        solvePnP). False (paper): they assume a pinhole camera whatever the lens.
+    exposure_s, n_subframes : float, int
+        Motion blur: frames integrate ``n_subframes`` renders over ``exposure_s`` (0 s, 1: sharp).
+    noise_std : float
+        Sensor noise standard deviation in 8-bit grey levels (0: none).
+    seed : int
+        Seed of every random choice in the run (sensor noise).
+    """
+
+    target: str = "sphere"
+    distortion: object = "none"
+    trajectory: str = "circular"
+    mode: str = "passive"
+    revolutions: float = 10.0
+    period_s: float = 2.0
+    fps: float = 30.0
+    width: int = 640
+    height: int = 480
+    hfov_rad: float = math.radians(60.0)
+    inner_rate_hz: float = 1000.0
+    latency_frames: int = 1
+    sphere_method: str = "circle"
+    aruco_refinement: str = "none"
+    calibrated: bool = False
+    exposure_s: float = 0.0
+    n_subframes: int = 1
+    noise_std: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self):
+        _choice("target", self.target, _TARGETS)
+        _choice("trajectory", self.trajectory, ("circular", "diagonal"))
+        _choice("mode", self.mode, _MODES)
+        _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
+        _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
+        if not isinstance(self.distortion, BrownConrady):
+            _choice("distortion", self.distortion, _DISTORTIONS)
+        for name in ("revolutions", "period_s", "fps", "inner_rate_hz", "hfov_rad"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+        if self.hfov_rad >= math.pi:
+            raise ValueError(f"hfov_rad must be < pi, got {self.hfov_rad}")
+        for name in ("width", "height", "n_subframes"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name), integer=True))
+        if self.inner_rate_hz < self.fps:
+            raise ValueError(f"inner_rate_hz ({self.inner_rate_hz}) must be >= fps ({self.fps})")
+        latency = float(self.latency_frames)
+        if not (latency.is_integer() and latency >= 0):
+            raise ValueError(f"latency_frames must be an integer >= 0, got {self.latency_frames!r}")
+        object.__setattr__(self, "latency_frames", int(latency))
+        for name in ("exposure_s", "noise_std"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v) or v < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, v)
+        if not isinstance(self.calibrated, bool):
+            raise TypeError(f"calibrated must be a bool, got {self.calibrated!r}")
+        if isinstance(self.seed, bool) or not float(self.seed).is_integer():
+            raise ValueError(f"seed must be an integer, got {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))
+
+    # Derived quantities -------------------------------------------------------------------
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics.from_fov(self.width, self.height, self.hfov_rad)
+
+    @property
+    def lens(self) -> BrownConrady | None:
+        """The camera's distortion model, or None for an ideal pinhole lens."""
+        if isinstance(self.distortion, BrownConrady):
+            return None if self.distortion.is_identity else self.distortion
+        return BrownConrady.default() if self.distortion == "default" else None
+
+    @property
+    def distortion_label(self) -> str:
+        if isinstance(self.distortion, BrownConrady):
+            return "custom"
+        return "distorted" if self.distortion == "default" else "undistorted"
+
+    @property
+    def path(self) -> Trajectory:
+        return Trajectory(self.trajectory, period_s=self.period_s)
+
+    @property
+    def n_frames(self) -> int:
+        return int(round(self.revolutions * self.period_s * self.fps))
+
+    def replace(self, **changes) -> "TrackingConfig":
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        if isinstance(self.distortion, BrownConrady):
+            out["distortion"] = {k: float(v) for k, v in asdict(self.distortion).items()}
+        return out
+
+    @property
+    def key(self) -> str:
+        """A short stable hash of every field, for caching results."""
+        text = json.dumps(self.to_dict(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @property
+    def label(self) -> str:
+        return f"{self.target}/{self.distortion_label}/{self.trajectory}/{self.mode}"
+
+
+@dataclass
+class TrackingResult:
+    """What :func:`simulate` returns.
+
+    Attributes
+    ----------
+    config : TrackingConfig
+    frames : pandas.DataFrame
+        One row per camera frame; see :data:`FRAME_COLUMNS` for the columns and units.
+    timing : dict
+        Wall-clock seconds spent rendering, detecting and in the rest of the loop (not part of
+        the science; varies between machines).
+    """
+
+    config: TrackingConfig
+    frames: pd.DataFrame
+    timing: dict = field(default_factory=dict)
+
+    @property
+    def error_m(self) -> pd.Series:
+        """|d_est − d_true| on detected frames, metres."""
+        return self.frames.loc[self.frames["detected"], "abs_error_m"]
+
+
+FRAME_COLUMNS = {
+    "frame": "frame index",
+    "t_s": "time the frame was taken, s",
+    "detected": "target detected and localised",
+    "true_x_m, true_y_m, true_z_m": "true target centre, world frame",
+    "est_x_m, est_y_m, est_z_m": "estimated target centre, world frame (NaN if not detected)",
+    "true_cam_x_m, true_cam_y_m, true_cam_z_m": "true centre, camera optical frame",
+    "est_cam_x_m, est_cam_y_m, est_cam_z_m": "estimate, camera optical frame",
+    "d_true_m, d_est_m": "distance camera optical centre → target centre",
+    "abs_error_m": "|d_est − d_true|",
+    "u_px, v_px": "detected target centre in the image (circle centre / marker corner mean)",
+    "offset_px": "distance of the detected centre from the image centre (cx, cy)",
+    "true_u_px, true_v_px, true_offset_px": "projection of the true centre through the lens",
+    "q_yaw_rad, q_roll_rad, q_pitch_rad": "joint angles when the frame was taken",
+    "qd_yaw_rad_s, qd_roll_rad_s, qd_pitch_rad_s": "joint rates when the frame was taken",
+}
+
+
+class _Estimator:
+    """Detector + localiser for one config: image → (pixel centre, centre in camera frame)."""
+
+    def __init__(self, config: TrackingConfig):
+        from . import detection
+
+        self.config = config
+        self.intrinsics = config.intrinsics
+        self.lens = config.lens if config.calibrated else None
+        if config.target == "sphere":
+            self.detector = detection.SphereDetector()
+            self.radius_m = 0.10
+            if config.sphere_method == "circle":
+                self._locate = lambda det: detection.locate_sphere_circle(det, self.intrinsics, self.radius_m)
+            else:
+                self._locate = lambda det: detection.locate_sphere_ellipse(
+                    det, self.intrinsics, self.radius_m, distortion=self.lens
+                )
+        else:
+            self.detector = detection.ArucoTracker(
+                self.intrinsics, marker_length_m=0.30, refinement=config.aruco_refinement, distortion=self.lens
+            )
+
+    def __call__(self, image):
+        if self.config.target == "sphere":
+            det = self.detector.detect(image)
+            if det is None:
+                return None, None
+            p = self._locate(det)
+            return np.asarray(det.center_px, float), (None if p is None else np.asarray(p, float))
+        poses = self.detector.detect(image)
+        pose = poses.get(0)
+        if pose is None:
+            return None, None
+        return np.asarray(pose.center_px, float), np.asarray(pose.t_cam_marker_m, float)
+
+
+def make_renderer(config: TrackingConfig):
+    """The scene renderer a config needs (one per target and lens; reusable across runs)."""
+    from .scene import SceneRenderer
+
+    return SceneRenderer(config.intrinsics, distortion=config.lens, target=config.target)
+
+
+def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> TrackingResult:
+    """Run one closed-loop tracking experiment.
+
+    Parameters
+    ----------
+    config : TrackingConfig
+    renderer : gimbal_lab.scene.SceneRenderer, optional
+        A renderer built for this config's camera, lens and target (reused across runs by
+        :mod:`gimbal_lab.experiments`); built and closed here when omitted.
+    progress : bool
+        Show a progress bar over frames.
+
+    Returns
+    -------
+    TrackingResult
+
+    Notes
+    -----
+    Paper §4.1 and Fig. 5. Same config (seed included) → identical frame table.
+    """
+    from .control import AxisPlant, GimbalAxis, ImageLoop, RateLoop
+    from .kinematics import GimbalKinematics
+
+    if not isinstance(config, TrackingConfig):
+        raise TypeError("config must be a TrackingConfig")
+    own_renderer = renderer is None
+    if own_renderer:
+        renderer = make_renderer(config)
+    rng = np.random.default_rng(config.seed)
+    K = config.intrinsics
+    lens = config.lens
+    path = config.path
+    estimate = _Estimator(config)
+    kin = GimbalKinematics.default()
+    T_world_body = np.eye(4)
+    T_world_body[:3, 3] = (0.0, 0.0, 2.0)
+    T_world_base = T_world_body @ kin.T_body_base
+
+    dt_s = 1.0 / config.inner_rate_hz
+    plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
+    axes = [GimbalAxis(p, dt_s) for p in plants]
+    rate_loops = [RateLoop(p, dt_s=dt_s) for p in plants]
+    image_loop = ImageLoop(K) if config.mode == "active" else None
+
+    n_frames = config.n_frames
+    n_steps = int(round(n_frames / config.fps * config.inner_rate_hz))
+    frame_steps = np.round(np.arange(n_frames + 1) * config.inner_rate_hz / config.fps).astype(int)
+    frame_steps[-1] = n_steps
+    pending: deque = deque()
+    rate_ref = np.zeros(3)
+    rows = []
+    timing = {"render_s": 0.0, "detect_s": 0.0, "total_s": 0.0}
+    t_start = time.perf_counter()
+
+    frames = range(n_frames)
+    if progress:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, desc=config.label, unit="frame")
+    for k in frames:
+        t_s = k / config.fps
+        q = np.array([a.angle_rad for a in axes])
+        qd = np.array([a.rate_rad_s for a in axes])
+        T_world_cam = T_world_base @ kin.forward(q)
+        T_world_target = target_pose(path, t_s)
+
+        t0 = time.perf_counter()
+        if config.exposure_s > 0 and config.n_subframes > 1:
+            # Within one exposure the gimbal's motion is interpolated at its current rate.
+            def pose_fn(t, q=q, qd=qd, t_k=t_s):
+                return T_world_base @ kin.forward(q + qd * (t - t_k)), target_pose(path, t)
+
+            image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
+        else:
+            image = renderer.render(T_world_cam, T_world_target)
+        if config.noise_std > 0:
+            noisy = image.astype(np.float32) + rng.normal(0.0, config.noise_std, image.shape)
+            image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        t1 = time.perf_counter()
+        uv, p_cam = estimate(image)
+        timing["detect_s"] += time.perf_counter() - t1
+        timing["render_s"] += t1 - t0
+
+        p_true = T_world_target[:3, 3]
+        R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
+        p_cam_true = R.T @ (p_true - c)
+        true_uv = project(p_cam_true, K, lens)[0]
+        detected = p_cam is not None and bool(np.all(np.isfinite(p_cam)))
+        p_est = R @ p_cam + c if detected else np.full(3, np.nan)
+        p_cam_est = p_cam if detected else np.full(3, np.nan)
+        d_true = float(np.linalg.norm(p_cam_true))
+        d_est = float(np.linalg.norm(p_cam_est)) if detected else math.nan
+        u, v = (uv if uv is not None else (math.nan, math.nan))
+        rows.append(
+            (k, t_s, detected, *p_true, *p_est, *p_cam_true, *p_cam_est, d_true, d_est,
+             abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
+             *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd)
+        )
+
+        # Outer loop: the measurement of frame k reaches it latency_frames frames later.
+        pending.append(uv)
+        if image_loop is not None:
+            if len(pending) > config.latency_frames:
+                measured = pending.popleft()
+                J_cam = kin.angular_jacobian(q, frame="camera")
+                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q), float)
+        else:
+            if len(pending) > config.latency_frames:
+                pending.popleft()
+
+        # Inner loops and axis dynamics until the next frame.
+        for _ in range(frame_steps[k + 1] - frame_steps[k]):
+            for i in range(3):
+                axis = axes[i]
+                torque = rate_loops[i].update(rate_ref[i], axis.measured_rate_rad_s)
+                axis.step(torque)
+
+    timing["total_s"] = time.perf_counter() - t_start
+    if own_renderer:
+        renderer.close()
+    columns = [
+        "frame", "t_s", "detected",
+        "true_x_m", "true_y_m", "true_z_m", "est_x_m", "est_y_m", "est_z_m",
+        "true_cam_x_m", "true_cam_y_m", "true_cam_z_m", "est_cam_x_m", "est_cam_y_m", "est_cam_z_m",
+        "d_true_m", "d_est_m", "abs_error_m", "u_px", "v_px", "offset_px",
+        "true_u_px", "true_v_px", "true_offset_px",
+        "q_yaw_rad", "q_roll_rad", "q_pitch_rad", "qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s",
+    ]
+    table = pd.DataFrame.from_records(rows, columns=columns)
+    return TrackingResult(config=config, frames=table, timing=timing)
