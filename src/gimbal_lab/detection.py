@@ -1,0 +1,846 @@
+"""Target detection and 3-D localisation: the HSV sphere detector and ArUco marker pose.
+
+Images are RGB ``uint8`` arrays of shape (H, W, 3) throughout, as the scene renderer produces
+them; OpenCV receives the colour order it needs inside each function.
+
+Sphere (paper §3.2.1, Figs. 2–4)
+    RGB → HSV → threshold (one or more ranges; red wraps around hue 0/180) → optional light
+    morphology → ``cv2.findContours`` (Suzuki–Abe) → largest contour → ``cv2.minEnclosingCircle``
+    (Welzl). Two localisations from one detection:
+
+    * :func:`locate_sphere_circle`, the paper's estimate, exactly as published:
+      d = r·f/R and x₀ = d·(û, v̂, 1)ᵀ with (û, v̂, 1)ᵀ = K⁻¹(u, v, 1)ᵀ.
+    * :func:`locate_sphere_ellipse`, the exact cone method the paper names but does not use:
+      fit a conic to the contour and decompose the cone it spans with the centre of projection.
+
+Marker (paper §3.2.2)
+    ``cv2.aruco.ArucoDetector`` then ``cv2.solvePnP(..., SOLVEPNP_IPPE_SQUARE)``
+    (:class:`ArucoTracker`).
+
+Both detectors take an optional :class:`Rectifier` (``cv2.remap`` to the ideal pinhole image with
+the same K), so "rectify, then detect with a pinhole model" can be compared with "detect on the
+raw image". A frame without a target yields ``None`` (sphere) or an empty dict (markers), never
+an exception.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .camera import BrownConrady, Intrinsics, UndistortionError, undistort
+
+__all__ = [
+    "SphereDetection",
+    "SpherePipelineSteps",
+    "SphereDetector",
+    "locate_sphere_circle",
+    "locate_sphere_ellipse",
+    "circle_method_estimate",
+    "sphere_silhouette_px",
+    "fit_conic",
+    "conic_to_ellipse",
+    "Rectifier",
+    "MarkerPose",
+    "ArucoTracker",
+    "REFINEMENT_MODES",
+    "CONTOUR_EDGE_INSET_PX",
+]
+
+#: Mean distance (px) by which the centres of a binary blob's boundary pixels lie inside the
+#: blob's true (sub-pixel) edge, for a chain of 8-connected boundary pixels as
+#: ``cv2.findContours`` returns it. An edge with unit normal n keeps as boundary pixels those
+#: whose centre lies less than m = max(|n_x|, |n_y|) inside it (a 4-neighbour is outside), so
+#: their mean depth is m/2; the chain holds m pixels per unit of edge length. Averaged over edge
+#: directions with that weight: ∫cos²φ dφ / (2∫cos φ dφ) over [0, π/4] = (π/8 + 1/4)/√2 ≈ 0.4545.
+CONTOUR_EDGE_INSET_PX = (math.pi / 8 + 0.25) / math.sqrt(2)
+
+_RED_LOWER = ((0, 120, 60), (170, 120, 60))
+_RED_UPPER = ((10, 255, 255), (180, 255, 255))
+
+
+def _check_rgb(rgb) -> np.ndarray:
+    if not isinstance(rgb, np.ndarray):
+        raise TypeError(f"rgb must be a numpy array, got {type(rgb).__name__}")
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must be a uint8 array of shape (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    return rgb
+
+
+def _check_intrinsics(intrinsics) -> Intrinsics:
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+    return intrinsics
+
+
+def _check_distortion(distortion) -> BrownConrady | None:
+    if distortion is not None and not isinstance(distortion, BrownConrady):
+        raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+    return distortion
+
+
+def _check_radius(radius_m) -> float:
+    value = float(radius_m)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"radius_m must be a finite length > 0 m, got {radius_m!r}")
+    return value
+
+
+# --------------------------------------------------------------------------------------------
+# Rectification
+# --------------------------------------------------------------------------------------------
+
+
+class Rectifier:
+    """Resample a distorted image into the ideal pinhole image with the same K.
+
+    The maps are computed once (``cv2.initUndistortRectifyMap`` with new camera matrix = K, fixed
+    point ``CV_16SC2``); :meth:`rectify` is one ``cv2.remap`` with bilinear interpolation. After
+    rectification a detector's pixel coordinates obey the pinhole model of ``intrinsics``.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+        The camera; also the geometry of the rectified image.
+    distortion : BrownConrady
+        The lens model to remove.
+    """
+
+    def __init__(self, intrinsics: Intrinsics, distortion: BrownConrady):
+        self.intrinsics = _check_intrinsics(intrinsics)
+        if not isinstance(distortion, BrownConrady):
+            raise TypeError(f"distortion must be a BrownConrady, got {type(distortion).__name__}")
+        self.distortion = distortion
+        self._map1, self._map2 = cv2.initUndistortRectifyMap(
+            intrinsics.K, distortion.coefficients, None, intrinsics.K, intrinsics.size, cv2.CV_16SC2
+        )
+
+    def rectify(self, rgb: np.ndarray) -> np.ndarray:
+        """Return the rectified copy of ``rgb`` (uint8, shape (H, W, 3), same size as the camera)."""
+        rgb = _check_rgb(rgb)
+        if rgb.shape[:2] != (self.intrinsics.height, self.intrinsics.width):
+            raise ValueError(
+                f"rgb must be {self.intrinsics.height}×{self.intrinsics.width} like the rectifier's camera, "
+                f"got {rgb.shape[0]}×{rgb.shape[1]}"
+            )
+        return cv2.remap(rgb, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+    def __repr__(self) -> str:
+        return f"Rectifier({self.intrinsics!r}, {self.distortion!r})"
+
+
+def _check_rectifier(rectifier) -> Rectifier | None:
+    if rectifier is not None and not isinstance(rectifier, Rectifier):
+        raise TypeError(f"rectifier must be a Rectifier or None, got {type(rectifier).__name__}")
+    return rectifier
+
+
+# --------------------------------------------------------------------------------------------
+# Sphere detection
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class SphereDetection:
+    """One detected blob.
+
+    Attributes
+    ----------
+    center_px : ndarray, shape (2,)
+        Centre (u, v) of the minimum enclosing circle, pixels.
+    radius_px : float
+        Radius R of the minimum enclosing circle, pixels (> 0).
+    contour_px : ndarray, shape (N, 2)
+        The blob's outer contour, pixels. From :class:`SphereDetector` these are the centres of
+        the boundary pixels, which lie ``edge_inset_px`` inside the true edge on average.
+    area_px : float
+        Area enclosed by the contour polygon (``cv2.contourArea``), px².
+    edge_inset_px : float
+        Mean distance by which ``contour_px`` lies inside the silhouette's true edge (px, ≥ 0);
+        :func:`locate_sphere_ellipse` pushes the contour outward by this much before the fit.
+        0 for a contour sampled on the edge itself (an analytic silhouette).
+    touches_border : bool
+        Whether the contour touches the image border (the target may be cut off).
+    """
+
+    center_px: np.ndarray
+    radius_px: float
+    contour_px: np.ndarray
+    area_px: float
+    edge_inset_px: float = 0.0
+    touches_border: bool = False
+
+    def __post_init__(self):
+        center = np.array(self.center_px, dtype=float).reshape(-1)
+        if center.shape != (2,) or not np.all(np.isfinite(center)):
+            raise ValueError(f"center_px must be 2 finite numbers, got {self.center_px!r}")
+        contour = np.array(self.contour_px, dtype=float)
+        if contour.ndim != 2 or contour.shape[1] != 2 or not np.all(np.isfinite(contour)):
+            raise ValueError(f"contour_px must be a finite (N, 2) array, got shape {np.shape(self.contour_px)}")
+        radius = float(self.radius_px)
+        if not (math.isfinite(radius) and radius > 0):
+            raise ValueError(f"radius_px must be finite and > 0 px, got {self.radius_px!r}")
+        inset = float(self.edge_inset_px)
+        if not (math.isfinite(inset) and inset >= 0):
+            raise ValueError(f"edge_inset_px must be finite and >= 0 px, got {self.edge_inset_px!r}")
+        center.setflags(write=False)
+        contour.setflags(write=False)
+        object.__setattr__(self, "center_px", center)
+        object.__setattr__(self, "contour_px", contour)
+        object.__setattr__(self, "radius_px", radius)
+        object.__setattr__(self, "area_px", float(self.area_px))
+        object.__setattr__(self, "edge_inset_px", inset)
+        object.__setattr__(self, "touches_border", bool(self.touches_border))
+
+
+@dataclass(frozen=True, eq=False)
+class SpherePipelineSteps:
+    """Every intermediate of :meth:`SphereDetector.pipeline`, for figures and teaching.
+
+    Attributes
+    ----------
+    rgb : ndarray, shape (H, W, 3)
+        The (rectified, if configured) input image.
+    hsv : ndarray, shape (H, W, 3)
+        OpenCV 8-bit HSV (H in 0–179, S and V in 0–255).
+    mask : ndarray, shape (H, W)
+        Binary mask (0 or 255) after thresholding and morphology.
+    contours : list of ndarray, each shape (N_i, 2)
+        Every outer contour found, pixels.
+    chosen : int or None
+        Index into ``contours`` of the blob that was kept, or None.
+    detection : SphereDetection or None
+    """
+
+    rgb: np.ndarray
+    hsv: np.ndarray
+    mask: np.ndarray
+    contours: list
+    chosen: int | None
+    detection: SphereDetection | None
+
+
+def _hsv_ranges(name: str, value) -> tuple[tuple[int, int, int], ...]:
+    arr = np.asarray(value)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
+        raise ValueError(f"{name} must be an (H, S, V) triple or a sequence of triples, got {value!r}")
+    if not np.all(np.isfinite(arr.astype(float))) or arr.min() < 0 or arr.max() > 255:
+        raise ValueError(f"{name} entries must lie in 0–255 (hue in OpenCV's 0–180), got {value!r}")
+    return tuple(tuple(int(x) for x in row) for row in arr)
+
+
+@dataclass(frozen=True)
+class SphereDetector:
+    """Colour-blob sphere detector, the pipeline of paper §3.2.1 (Fig. 4).
+
+    Parameters
+    ----------
+    hsv_lower, hsv_upper : (H, S, V) triple or sequence of triples
+        Inclusive threshold ranges in OpenCV's 8-bit HSV (H 0–180, S and V 0–255); a pixel is
+        foreground when it lies in any of the ranges. The default selects a saturated red with
+        two ranges, H ∈ [0, 10] ∪ [170, 180], because red wraps around hue 0.
+    min_area_px : float
+        Smallest contour area (px², > 0) accepted as a target; smaller blobs mean "no target".
+    reject_border : bool
+        If True, blobs whose contour touches the image border are not candidates (a cut-off
+        sphere biases both localisations).
+    morphology_px : int
+        Side of the elliptical kernel of a morphological opening applied to the mask (removes
+        speckle); 0 or 1 disables it (the default: rendered images need none).
+    rectifier : Rectifier, optional
+        Rectify each frame first; the detection is then in ideal pinhole pixels.
+
+    Notes
+    -----
+    The detection keeps the largest remaining contour (by area) and its minimum enclosing
+    circle. Two blobs of the target colour: the larger one wins.
+
+    Examples
+    --------
+    >>> img = np.zeros((120, 160, 3), np.uint8)
+    >>> _ = cv2.circle(img, (80, 60), 20, (230, 20, 20), -1)   # red in RGB order
+    >>> det = SphereDetector().detect(img)
+    >>> [round(float(x)) for x in det.center_px], round(det.radius_px)
+    ([80, 60], 20)
+    """
+
+    hsv_lower: tuple = _RED_LOWER
+    hsv_upper: tuple = _RED_UPPER
+    min_area_px: float = 20.0
+    reject_border: bool = False
+    morphology_px: int = 0
+    rectifier: Rectifier | None = None
+    _bounds: tuple = field(init=False, repr=False, compare=False)
+    _kernel: object = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        lower = _hsv_ranges("hsv_lower", self.hsv_lower)
+        upper = _hsv_ranges("hsv_upper", self.hsv_upper)
+        if len(lower) != len(upper):
+            raise ValueError(f"hsv_lower and hsv_upper must hold as many ranges, got {len(lower)} and {len(upper)}")
+        for lo, hi in zip(lower, upper):
+            if any(a > b for a, b in zip(lo, hi)):
+                raise ValueError(f"each hsv_lower must be <= its hsv_upper, got {lo} > {hi}")
+        area = float(self.min_area_px)
+        if not (math.isfinite(area) and area > 0):
+            raise ValueError(f"min_area_px must be finite and > 0 px², got {self.min_area_px!r}")
+        if isinstance(self.morphology_px, bool) or int(self.morphology_px) != self.morphology_px or self.morphology_px < 0:
+            raise ValueError(f"morphology_px must be an integer >= 0, got {self.morphology_px!r}")
+        _check_rectifier(self.rectifier)
+        object.__setattr__(self, "hsv_lower", lower)
+        object.__setattr__(self, "hsv_upper", upper)
+        object.__setattr__(self, "min_area_px", area)
+        object.__setattr__(self, "reject_border", bool(self.reject_border))
+        object.__setattr__(self, "morphology_px", int(self.morphology_px))
+        bounds = tuple((np.array(lo, np.uint8), np.array(hi, np.uint8)) for lo, hi in zip(lower, upper))
+        object.__setattr__(self, "_bounds", bounds)
+        kernel = (
+            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (self.morphology_px, self.morphology_px))
+            if self.morphology_px > 1
+            else None
+        )
+        object.__setattr__(self, "_kernel", kernel)
+
+    def _mask(self, hsv: np.ndarray) -> np.ndarray:
+        (lo, hi), *rest = self._bounds
+        mask = cv2.inRange(hsv, lo, hi)
+        for lo, hi in rest:
+            cv2.bitwise_or(mask, cv2.inRange(hsv, lo, hi), dst=mask)
+        if self._kernel is not None:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, self._kernel)
+        return mask
+
+    def _choose(self, contours, shape) -> tuple[int | None, SphereDetection | None]:
+        height, width = shape
+        best, best_area, best_border = None, -1.0, False
+        for i, contour in enumerate(contours):
+            area = cv2.contourArea(contour)
+            if area < self.min_area_px or area <= best_area:
+                continue
+            x, y, w, h = cv2.boundingRect(contour)
+            border = x == 0 or y == 0 or x + w == width or y + h == height
+            if border and self.reject_border:
+                continue
+            best, best_area, best_border = i, area, border
+        if best is None:
+            return None, None
+        contour = contours[best]
+        (u, v), radius = cv2.minEnclosingCircle(contour)
+        detection = SphereDetection(
+            center_px=(u, v),
+            radius_px=radius,
+            contour_px=contour.reshape(-1, 2),
+            area_px=best_area,
+            edge_inset_px=CONTOUR_EDGE_INSET_PX,
+            touches_border=best_border,
+        )
+        return best, detection
+
+    def detect(self, rgb: np.ndarray) -> SphereDetection | None:
+        """Detect the sphere in one RGB frame.
+
+        Parameters
+        ----------
+        rgb : ndarray, shape (H, W, 3), uint8
+            The frame, RGB channel order.
+
+        Returns
+        -------
+        SphereDetection or None
+            None when no blob of the target colour with area ≥ ``min_area_px`` is seen (or only
+            border-touching ones while ``reject_border``).
+        """
+        rgb = _check_rgb(rgb)
+        if self.rectifier is not None:
+            rgb = self.rectifier.rectify(rgb)
+        mask = self._mask(cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV))
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        return self._choose(contours, mask.shape)[1]
+
+    def pipeline(self, rgb: np.ndarray) -> SpherePipelineSteps:
+        """Run :meth:`detect` and keep every intermediate (HSV, mask, contours) for figures."""
+        rgb = _check_rgb(rgb)
+        if self.rectifier is not None:
+            rgb = self.rectifier.rectify(rgb)
+        hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+        mask = self._mask(hsv)
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        chosen, detection = self._choose(contours, mask.shape)
+        return SpherePipelineSteps(
+            rgb=rgb,
+            hsv=hsv,
+            mask=mask,
+            contours=[c.reshape(-1, 2) for c in contours],
+            chosen=chosen,
+            detection=detection,
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Sphere localisation
+# --------------------------------------------------------------------------------------------
+
+
+def locate_sphere_circle(detection: SphereDetection, intrinsics: Intrinsics, radius_m: float) -> np.ndarray:
+    """The paper's sphere position estimate from the enclosing circle (§3.2.1), as published.
+
+    d = r·f/R and x₀ = d·(û, v̂, 1)ᵀ, (û, v̂, 1)ᵀ = K⁻¹(u, v, 1)ᵀ, where (u, v) and R are the
+    enclosing circle's centre and radius (px), r the sphere radius (m) and f = (fx + fy)/2
+    (the paper has one focal length; the study camera has fx = fy). No lens model is used.
+
+    Parameters
+    ----------
+    detection : SphereDetection
+    intrinsics : Intrinsics
+    radius_m : float
+        True sphere radius r, metres.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Estimated sphere centre in the camera optical frame, metres.
+
+    Notes
+    -----
+    d is treated as the depth (z) of the centre. On the optical axis the enclosing circle has
+    R = f·tan α with sin α = r/D, so d = D·cos α: the estimate is short by D(1 − cos α) ≈ r²/(2D).
+    Off axis the error grows like D(1 − cos θ); see :func:`circle_method_estimate`.
+    """
+    _check_intrinsics(intrinsics)
+    radius_m = _check_radius(radius_m)
+    focal_px = 0.5 * (intrinsics.fx + intrinsics.fy)
+    depth_m = radius_m * focal_px / detection.radius_px
+    ray = np.append(intrinsics.to_normalised(detection.center_px)[0], 1.0)
+    return depth_m * ray
+
+
+def circle_method_estimate(distance_m, radius_m: float, off_axis_rad) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form result of the circle method on an ideal (pinhole, noise-free) silhouette.
+
+    A sphere of radius r whose centre lies at range D and angle θ from the optical axis is seen
+    as an ellipse whose major axis points away from the principal point. With sin α = r/D, the
+    two extreme rays in the plane of the axis make angles θ ± α with the axis, so in normalised
+    coordinates (f = 1) the major semi-axis and the centre of the ellipse are
+
+        a = [tan(θ+α) − tan(θ−α)]/2 = sin α cos α / (cos²θ − sin²α),
+        û = [tan(θ+α) + tan(θ−α)]/2 = sin θ cos θ / (cos²θ − sin²α).
+
+    The minimum enclosing circle of an ellipse is its major-axis circle (centre û, radius a), so
+    the paper's estimate is depth d = r/a = D (cos²θ − sin²α)/cos α, lateral d·û = D sin θ cos θ/cos α,
+    and its range is
+
+        |x₀| = D √(cos²θ − 2 sin²α cos²θ + sin⁴α) / cos α ≈ D cos θ (1 − sin²α/2).
+
+    The range error D − |x₀| is therefore ≈ r²/(2D) on axis and ≈ D(1 − cos θ) off axis.
+
+    Parameters
+    ----------
+    distance_m : float or array_like
+        Range D from the optical centre to the sphere centre, metres (> r).
+    radius_m : float
+        Sphere radius r, metres.
+    off_axis_rad : float or array_like
+        Angle θ between the optical axis and the direction to the centre, radians (θ + α < π/2).
+
+    Returns
+    -------
+    range_m, depth_m : ndarray
+        The estimate's range |x₀| and depth z₀ (broadcast shape of the inputs), metres.
+    """
+    radius_m = _check_radius(radius_m)
+    distance = np.asarray(distance_m, dtype=float)
+    theta = np.asarray(off_axis_rad, dtype=float)
+    if np.any(distance <= radius_m):
+        raise ValueError(f"distance_m must exceed radius_m = {radius_m} m")
+    sin2_alpha = (radius_m / distance) ** 2
+    cos_alpha = np.sqrt(1.0 - sin2_alpha)
+    cos2_theta = np.cos(theta) ** 2
+    if np.any(cos2_theta - sin2_alpha <= 0):
+        raise ValueError("off_axis_rad + the sphere's angular radius must stay below pi/2")
+    depth = distance * (cos2_theta - sin2_alpha) / cos_alpha
+    range_ = distance * np.sqrt(cos2_theta - 2 * sin2_alpha * cos2_theta + sin2_alpha**2) / cos_alpha
+    return range_, depth
+
+
+def sphere_silhouette_px(
+    center_cam_m,
+    radius_m: float,
+    intrinsics: Intrinsics,
+    distortion: BrownConrady | None = None,
+    n_points: int = 720,
+) -> np.ndarray:
+    """The exact image outline of a sphere: the projection of its circle of tangency.
+
+    Rays from the optical centre tangent to a sphere (centre C, range D = |C|, radius r) touch it
+    on a circle centred at C·(1 − r²/D²), of radius r·√(D² − r²)/D, in the plane normal to C.
+    Sampling that circle and projecting it (with the lens model, when given) gives points exactly
+    on the silhouette's edge.
+
+    Parameters
+    ----------
+    center_cam_m : array_like, shape (3,)
+        Sphere centre in the camera optical frame, metres (in front of the camera).
+    radius_m : float
+    intrinsics : Intrinsics
+    distortion : BrownConrady, optional
+    n_points : int
+        Number of samples (≥ 5).
+
+    Returns
+    -------
+    ndarray, shape (n_points, 2)
+        Silhouette points, pixels.
+    """
+    center = np.asarray(center_cam_m, dtype=float).reshape(3)
+    radius_m = _check_radius(radius_m)
+    distance = float(np.linalg.norm(center))
+    if not distance > radius_m:
+        raise ValueError("center_cam_m must lie farther than radius_m from the camera")
+    if n_points < 5:
+        raise ValueError(f"n_points must be >= 5, got {n_points}")
+    axis = center / distance
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    ring_radius = radius_m * math.sqrt(distance**2 - radius_m**2) / distance
+    ring_center = center * (1.0 - radius_m**2 / distance**2)
+    phi = np.linspace(0.0, 2 * math.pi, n_points, endpoint=False)
+    points = ring_center + ring_radius * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+    from .camera import project
+
+    return project(points, intrinsics, distortion)
+
+
+def fit_conic(points) -> np.ndarray | None:
+    """Algebraic least-squares conic through 2-D points.
+
+    Finds the symmetric 3 × 3 C (unit Frobenius norm) minimising Σ (pᵢᵀ C pᵢ)², pᵢ = (xᵢ, yᵢ, 1),
+    as the smallest right singular vector of the design matrix [x², xy, y², x, y, 1], after
+    moving the points' centroid to the origin and scaling their mean radius to √2 (Hartley's
+    conditioning). Exact for points on a conic.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 2)
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or None
+        The conic, sign chosen so that the centroid of the points is inside (pᵀCp < 0 there);
+        None when fewer than 5 points or the fit is not an ellipse.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 5 or not np.all(np.isfinite(pts)):
+        return None
+    mean = pts.mean(axis=0)
+    spread = np.mean(np.hypot(*(pts - mean).T))
+    if not spread > 0:
+        return None
+    scale = math.sqrt(2.0) / spread
+    x, y = ((pts - mean) * scale).T
+    design = np.column_stack((x * x, x * y, y * y, x, y, np.ones_like(x)))
+    _, _, vt = np.linalg.svd(design, full_matrices=False)
+    a, b, c, d, e, f = vt[-1]
+    if 4 * a * c - b * b <= 0:
+        return None
+    conic_n = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
+    norm = np.array([[scale, 0.0, -scale * mean[0]], [0.0, scale, -scale * mean[1]], [0.0, 0.0, 1.0]])
+    conic = norm.T @ conic_n @ norm
+    centroid = np.append(mean, 1.0)
+    if centroid @ conic @ centroid > 0:
+        conic = -conic
+    return conic / np.linalg.norm(conic)
+
+
+def conic_to_ellipse(conic) -> tuple[np.ndarray, np.ndarray, float]:
+    """Centre, semi-axes and orientation of the ellipse xᵀCx = 0 (C from :func:`fit_conic`).
+
+    Parameters
+    ----------
+    conic : array_like, shape (3, 3)
+        Symmetric conic matrix of a real ellipse.
+
+    Returns
+    -------
+    center : ndarray, shape (2,)
+    semi_axes : ndarray, shape (2,)
+        Major then minor semi-axis, in the units of the points.
+    angle_rad : float
+        Direction of the major axis from the +x axis, radians in [0, π).
+    """
+    C = np.asarray(conic, dtype=float)
+    A = C[:2, :2]
+    center = np.linalg.solve(A, -C[:2, 2])
+    # Translated to its centre the conic is yᵀ A y + k = 0 with k = C(center) (homogeneous value).
+    k = C[2, 2] + C[:2, 2] @ center
+    eigenvalues, eigenvectors = np.linalg.eigh(A)
+    semi = np.sqrt(-k / eigenvalues)
+    order = np.argsort(semi)[::-1]
+    major = eigenvectors[:, order[0]]
+    angle = math.atan2(major[1], major[0]) % math.pi
+    return center, semi[order], angle
+
+
+def _push_outward(points: np.ndarray, distance_px: float) -> np.ndarray | None:
+    """Move points by ``distance_px`` along the outward normal of the conic fitted to them."""
+    conic = fit_conic(points)
+    if conic is None:
+        return None
+    homogeneous = np.column_stack((points, np.ones(len(points))))
+    gradient = (homogeneous @ conic)[:, :2]
+    length = np.linalg.norm(gradient, axis=1)
+    if not np.all(length > 0):
+        return None
+    return points + distance_px * gradient / length[:, None]
+
+
+def locate_sphere_ellipse(
+    detection: SphereDetection,
+    intrinsics: Intrinsics,
+    radius_m: float,
+    distortion: BrownConrady | None = None,
+) -> np.ndarray | None:
+    """Exact sphere centre from the cone through its image outline (paper §3.2.1, ref. [27]).
+
+    1. When ``detection.edge_inset_px`` > 0, move the contour that far outward along the normal
+       of a first conic fit (boundary-pixel centres lie inside the true edge).
+    2. Undistort the contour with ``distortion`` (when given) and take normalised coordinates
+       x = K⁻¹p; fit a conic Q to them. Q equals KᵀCK for the conic C in pinhole pixels, and
+       is the cone of rays through the outline: Xᵀ Q X = 0.
+    3. For a sphere the cone is (d·X)² = cos²α |X|², i.e. Q ∝ d dᵀ − cos²α I with d the unit
+       direction to the centre and sin α = r/D. Its eigenvalues are k·sin²α (eigenvector d) and
+       −k·cos²α twice. Take λ∥ as the eigenvalue whose sign differs from the other two and
+       λ⊥ as their mean: sin²α = λ∥/(λ∥ − λ⊥), D = r/sin α, centre = D·d with d_z > 0.
+
+    Parameters
+    ----------
+    detection : SphereDetection
+    intrinsics : Intrinsics
+    radius_m : float
+        True sphere radius r, metres.
+    distortion : BrownConrady, optional
+        Lens model of the image the contour comes from (None: pinhole, or already rectified).
+
+    Returns
+    -------
+    ndarray, shape (3,) or None
+        Sphere centre in the camera optical frame, metres; None when the contour has fewer than
+        5 points, does not fit an ellipse, cannot be undistorted, or the cone is not one a
+        sphere could make.
+
+    Notes
+    -----
+    Exact (to rounding) on noise-free outline points, anywhere in the image.
+    """
+    _check_intrinsics(intrinsics)
+    radius_m = _check_radius(radius_m)
+    distortion = _check_distortion(distortion)
+    points = detection.contour_px
+    if detection.edge_inset_px > 0:
+        points = _push_outward(points, detection.edge_inset_px)
+        if points is None:
+            return None
+    try:
+        xy = undistort(intrinsics.to_normalised(points), distortion)
+    except UndistortionError:
+        return None
+    cone = fit_conic(xy)
+    if cone is None:
+        return None
+    eigenvalues, eigenvectors = np.linalg.eigh(cone)
+    positive = eigenvalues > 0
+    if positive.sum() == 2:
+        eigenvalues = -eigenvalues
+        positive = ~positive
+    if positive.sum() != 1:
+        return None
+    i = int(np.flatnonzero(positive)[0])
+    lam_par = eigenvalues[i]
+    lam_perp = np.delete(eigenvalues, i).mean()
+    sin2_alpha = lam_par / (lam_par - lam_perp)
+    if not 0.0 < sin2_alpha < 1.0:
+        return None
+    direction = eigenvectors[:, i]
+    if direction[2] < 0:
+        direction = -direction
+    return (radius_m / math.sqrt(sin2_alpha)) * direction
+
+
+# --------------------------------------------------------------------------------------------
+# ArUco markers
+# --------------------------------------------------------------------------------------------
+
+REFINEMENT_MODES = {
+    "none": cv2.aruco.CORNER_REFINE_NONE,
+    "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
+    "contour": cv2.aruco.CORNER_REFINE_CONTOUR,
+    "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG,
+}
+"""Corner refinement names accepted by :class:`ArucoTracker` and their OpenCV constants."""
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerPose:
+    """Pose of one marker in the camera optical frame.
+
+    Attributes
+    ----------
+    marker_id : int
+    corners_px : ndarray, shape (4, 2)
+        Image corners in the dictionary's order (top-left, top-right, bottom-right, bottom-left
+        of the marker), pixels.
+    rvec : ndarray, shape (3,)
+        Rotation vector (Rodrigues) of ``R_cam_marker``, radians.
+    R_cam_marker : ndarray, shape (3, 3)
+        Rotation mapping marker-frame vectors to the camera frame.
+    t_cam_marker_m : ndarray, shape (3,)
+        Marker centre in the camera frame, metres.
+    center_px : ndarray, shape (2,)
+        Mean of the four corners, pixels.
+    reprojection_error_px : float
+        RMS distance between the corners and the model corners reprojected with the pose.
+    """
+
+    marker_id: int
+    corners_px: np.ndarray
+    rvec: np.ndarray
+    R_cam_marker: np.ndarray
+    t_cam_marker_m: np.ndarray
+    center_px: np.ndarray
+    reprojection_error_px: float
+
+    @property
+    def T_cam_marker(self) -> np.ndarray:
+        """4 × 4 homogeneous transform marker → camera."""
+        transform = np.eye(4)
+        transform[:3, :3] = self.R_cam_marker
+        transform[:3, 3] = self.t_cam_marker_m
+        return transform
+
+    @property
+    def distance_m(self) -> float:
+        """Range from the optical centre to the marker centre, metres."""
+        return float(np.linalg.norm(self.t_cam_marker_m))
+
+
+class ArucoTracker:
+    """ArUco marker detection and pose (paper §3.2.2).
+
+    ``cv2.aruco.ArucoDetector`` (adaptive threshold, Suzuki–Abe contours, Douglas–Peucker
+    quadrilaterals, code read through a homography), then per marker
+    ``cv2.solvePnP(..., SOLVEPNP_IPPE_SQUARE)`` with the object corners (−L/2, L/2, 0),
+    (L/2, L/2, 0), (L/2, −L/2, 0), (−L/2, −L/2, 0) in the marker frame (x right, y up on the
+    printed marker, z out of its face).
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+    marker_length_m : float
+        Side L of the black square, metres.
+    dictionary : str or int
+        Predefined dictionary, by name ("DICT_4X4_50") or OpenCV constant.
+    refinement : {"none", "subpix", "contour", "apriltag"}
+        Corner refinement; the paper does not say which it used.
+    distortion : BrownConrady, optional
+        Passed to ``solvePnP``, which then undistorts the corners. None is the paper's setting:
+        the pinhole model is assumed even when the lens distorts.
+    rectifier : Rectifier, optional
+        Rectify each frame before detection (then ``distortion`` must be None).
+    """
+
+    def __init__(
+        self,
+        intrinsics: Intrinsics,
+        marker_length_m: float = 0.30,
+        dictionary: str | int = "DICT_4X4_50",
+        refinement: str = "none",
+        distortion: BrownConrady | None = None,
+        rectifier: Rectifier | None = None,
+    ):
+        self.intrinsics = _check_intrinsics(intrinsics)
+        length = float(marker_length_m)
+        if not (math.isfinite(length) and length > 0):
+            raise ValueError(f"marker_length_m must be finite and > 0 m, got {marker_length_m!r}")
+        self.marker_length_m = length
+        if isinstance(dictionary, str):
+            if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
+                raise ValueError(f"dictionary must name a cv2.aruco predefined dictionary, got {dictionary!r}")
+            dictionary_id = getattr(cv2.aruco, dictionary)
+        else:
+            dictionary_id = int(dictionary)
+        self.dictionary = dictionary
+        if refinement not in REFINEMENT_MODES:
+            raise ValueError(f"refinement must be one of {sorted(REFINEMENT_MODES)}, got {refinement!r}")
+        self.refinement = refinement
+        self.distortion = _check_distortion(distortion)
+        self.rectifier = _check_rectifier(rectifier)
+        if self.rectifier is not None and self.distortion is not None:
+            raise ValueError("give either rectifier or distortion, not both: a rectified image is already pinhole")
+        parameters = cv2.aruco.DetectorParameters()
+        parameters.cornerRefinementMethod = REFINEMENT_MODES[refinement]
+        self._detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(dictionary_id), parameters)
+        half = length / 2.0
+        self.object_points_m = np.array(
+            [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
+        )
+        self._K = intrinsics.K
+        self._dist = self.distortion.coefficients if self.distortion is not None else None
+
+    def __repr__(self) -> str:
+        return (
+            f"ArucoTracker(marker_length_m={self.marker_length_m}, dictionary={self.dictionary!r}, "
+            f"refinement={self.refinement!r}, distortion={self.distortion!r}, rectifier={self.rectifier!r})"
+        )
+
+    def detect(self, rgb: np.ndarray) -> dict[int, MarkerPose]:
+        """Detect every marker of the dictionary in one RGB frame and estimate its pose.
+
+        Parameters
+        ----------
+        rgb : ndarray, shape (H, W, 3), uint8
+            The frame, RGB channel order.
+
+        Returns
+        -------
+        dict of int to MarkerPose
+            Keyed by marker id; empty when no marker is seen. If an id appears twice, the
+            larger image of it is kept.
+        """
+        rgb = _check_rgb(rgb)
+        if self.rectifier is not None:
+            rgb = self.rectifier.rectify(rgb)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        corners, ids, _ = self._detector.detectMarkers(gray)
+        poses: dict[int, MarkerPose] = {}
+        if ids is None:
+            return poses
+        for quad, marker_id in zip(corners, ids.reshape(-1)):
+            image_points = quad.reshape(4, 2).astype(float)
+            ok, rvec, tvec = cv2.solvePnP(
+                self.object_points_m, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+            )
+            if not ok:
+                continue
+            marker_id = int(marker_id)
+            if marker_id in poses and cv2.contourArea(poses[marker_id].corners_px.astype(np.float32)) >= cv2.contourArea(
+                quad.reshape(4, 2)
+            ):
+                continue
+            reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
+            residual = reprojected.reshape(4, 2) - image_points
+            poses[marker_id] = MarkerPose(
+                marker_id=marker_id,
+                corners_px=image_points,
+                rvec=rvec.reshape(3),
+                R_cam_marker=cv2.Rodrigues(rvec)[0],
+                t_cam_marker_m=tvec.reshape(3),
+                center_px=image_points.mean(axis=0),
+                reprojection_error_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
+            )
+        return poses
