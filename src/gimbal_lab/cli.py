@@ -21,14 +21,11 @@ def _reproduce(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     configs = paper_grid(revolutions=args.revolutions)
-    if args.ellipse:
-        configs += [c.replace(sphere_method="ellipse") for c in configs if c.target == "sphere"]
     print(f"Running {len(configs)} closed-loop runs ({args.revolutions:g} revolutions each) on {args.jobs or os.cpu_count()} processes")
     results = run_grid(configs, jobs=args.jobs, cache_dir=out / "cache" if args.cache else None)
 
     summary = summarize(results)
-    paper = summary[summary["method"].isin(["circle"]) | (summary["target"] == "aruco")]
-    claims = check_claims(paper)
+    claims = check_claims(summary)
     written = []
     path = out / "summary.csv"
     summary.to_csv(path, index=False)
@@ -62,7 +59,7 @@ def _reproduce(args) -> int:
     ):
         for r in results:
             c = r.config
-            if (c.target, c.distortion_label, c.trajectory) == (target, dist, traj) and c.sphere_method == "circle":
+            if (c.target, c.distortion_label, c.trajectory) == (target, dist, traj):
                 fig = plotting.study.plot_xyz(r, revolution=min(1, int(c.revolutions) - 1) if c.revolutions >= 1 else 0)
                 written.append(plotting.save_figure(fig, f"{name}_{c.mode}", figures))
     plt.close("all")
@@ -81,8 +78,6 @@ def main(argv=None) -> int:
     rep.add_argument("--out", default="results", help="output folder (default: results)")
     rep.add_argument("--jobs", type=int, default=None, help="worker processes (default: all CPUs)")
     rep.add_argument("--revolutions", type=float, default=10.0, help="revolutions per run (paper: 10)")
-    rep.add_argument("--no-ellipse", dest="ellipse", action="store_false",
-                     help="skip the extra sphere runs with the exact ellipse method")
     rep.add_argument("--no-cache", dest="cache", action="store_false", help="do not reuse cached runs")
     args = parser.parse_args(argv)
     if args.command == "reproduce":

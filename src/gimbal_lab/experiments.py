@@ -138,40 +138,49 @@ def run_grid(configs, jobs: int | None = None, cache_dir=None, progress: bool = 
 # --- summarising ----------------------------------------------------------------------------
 
 
-def summarize(results) -> pd.DataFrame:
-    """One row per run: detection rate, distance-error statistics, pixel offset, per-axis errors.
+def _stats(f: pd.DataFrame, prefix: str = "") -> dict:
+    """Error statistics of one estimator's columns (``prefix`` "" or "alt_") in a frame table."""
+    detected = f[f[f"{prefix}detected"]]
+    err = detected[f"{prefix}abs_error_m"]
+    row = {
+        "frames": len(f),
+        "detection_rate": float(f[f"{prefix}detected"].mean()) if len(f) else math.nan,
+        "mean_error_m": float(err.mean()) if len(err) else math.nan,
+        "std_error_m": float(err.std(ddof=1)) if len(err) > 1 else math.nan,
+        "median_error_m": float(err.median()) if len(err) else math.nan,
+        "mean_offset_px": float(detected["offset_px"].mean()) if len(detected) else math.nan,
+    }
+    for axis in "xyz":
+        diff = detected[f"{prefix}est_{axis}_m"] - detected[f"true_{axis}_m"]
+        row[f"mean_abs_err_{axis}_m"] = float(diff.abs().mean())
+    for axis in "xyz":
+        diff = detected[f"{prefix}est_cam_{axis}_m"] - detected[f"true_cam_{axis}_m"]
+        row[f"mean_abs_err_cam_{axis}_m"] = float(diff.abs().mean())
+    return row
+
+
+def summarize(results, alternatives: bool = True) -> pd.DataFrame:
+    """One row per run and estimator: detection rate, distance-error statistics, pixel offset,
+    per-axis errors.
 
     Columns: target, distortion, trajectory, mode, method, frames, detection_rate,
     mean_error_m, std_error_m, median_error_m, mean_offset_px, mean_abs_err_{x,y,z}_m (world)
     and mean_abs_err_cam_{x,y,z}_m (camera frame; z is depth), key.
+
+    With ``alternatives`` a sphere run contributes a second row for the localiser it recorded
+    alongside its own (circle ↔ ellipse) on the same frames.
     """
     rows = []
     for r in results:
         c = r.config
-        f = r.frames
-        det = f[f["detected"]]
-        err = det["abs_error_m"]
-        row = {
-            "target": c.target,
-            "distortion": c.distortion_label,
-            "trajectory": c.trajectory,
-            "mode": c.mode,
-            "method": c.sphere_method if c.target == "sphere" else f"aruco-{c.aruco_refinement}",
-            "frames": len(f),
-            "detection_rate": float(f["detected"].mean()) if len(f) else math.nan,
-            "mean_error_m": float(err.mean()) if len(err) else math.nan,
-            "std_error_m": float(err.std(ddof=1)) if len(err) > 1 else math.nan,
-            "median_error_m": float(err.median()) if len(err) else math.nan,
-            "mean_offset_px": float(det["offset_px"].mean()) if len(det) else math.nan,
-        }
-        for axis in "xyz":
-            row[f"mean_abs_err_{axis}_m"] = float((det[f"est_{axis}_m"] - det[f"true_{axis}_m"]).abs().mean())
-        for axis in "xyz":
-            row[f"mean_abs_err_cam_{axis}_m"] = float(
-                (det[f"est_cam_{axis}_m"] - det[f"true_cam_{axis}_m"]).abs().mean()
-            )
-        row["key"] = c.key
-        rows.append(row)
+        ident = {"target": c.target, "distortion": c.distortion_label, "trajectory": c.trajectory, "mode": c.mode}
+        if c.target == "sphere":
+            other = "ellipse" if c.sphere_method == "circle" else "circle"
+            variants = [(c.sphere_method, "")] + ([(other, "alt_")] if alternatives else [])
+        else:
+            variants = [(f"aruco-{c.aruco_refinement}", "")]
+        for method, prefix in variants:
+            rows.append({**ident, "method": method, **_stats(r.frames, prefix), "key": c.key})
     return pd.DataFrame(rows)
 
 
@@ -206,11 +215,12 @@ def _mm(x: float) -> str:
     return f"{1000 * x:.2f} mm"
 
 
-def check_claims(summary: pd.DataFrame) -> pd.DataFrame:
+def check_claims(summary: pd.DataFrame, sphere_method: str = "circle") -> pd.DataFrame:
     """Every claim of paper §4.1.1–4.1.2 listed in DESIGN.md, with its numbers and a verdict.
 
     The verdicts are computed from ``summary`` (the output of :func:`summarize` for the 16-run
-    grid with one sphere method); nothing is assumed. "About equal" means a difference below
+    grid); nothing is assumed. Sphere rows of other localisers than ``sphere_method`` (the
+    paper's: circle) are ignored. "About equal" means a difference below
     :data:`EQUIVALENCE_MARGIN` of the two errors' mean.
 
     Returns
@@ -221,6 +231,8 @@ def check_claims(summary: pd.DataFrame) -> pd.DataFrame:
     dists = ("undistorted", "distorted")
     trajs = ("circular", "diagonal")
     modes = ("passive", "active")
+    if "method" in summary.columns:
+        summary = summary[(summary["target"] != "sphere") | (summary["method"] == sphere_method)]
     claims: list[Claim] = []
 
     def m(target, dist, traj, mode, column="mean_error_m"):

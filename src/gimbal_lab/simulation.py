@@ -238,11 +238,17 @@ FRAME_COLUMNS = {
     "true_u_px, true_v_px, true_offset_px": "projection of the true centre through the lens",
     "q_yaw_rad, q_roll_rad, q_pitch_rad": "joint angles when the frame was taken",
     "qd_yaw_rad_s, qd_roll_rad_s, qd_pitch_rad_s": "joint rates when the frame was taken",
+    "alt_*": "sphere only: the same columns for the other localiser (circle ↔ ellipse) on the same frame",
 }
 
 
 class _Estimator:
-    """Detector + localiser for one config: image → (pixel centre, centre in camera frame)."""
+    """Detector + localiser for one config: image → (pixel centre, centre in camera frame, alt).
+
+    For the sphere both localisers run on the same detection: the config's method gives the
+    estimate, the other one (circle ↔ ellipse) is recorded alongside as ``alt`` so the two can be
+    compared on identical frames (the closed loop only uses the pixel centre, which they share).
+    """
 
     def __init__(self, config: TrackingConfig):
         from . import detection
@@ -250,15 +256,12 @@ class _Estimator:
         self.config = config
         self.intrinsics = config.intrinsics
         self.lens = config.lens if config.calibrated else None
+        self.radius_m = 0.10
         if config.target == "sphere":
             self.detector = detection.SphereDetector()
-            self.radius_m = 0.10
-            if config.sphere_method == "circle":
-                self._locate = lambda det: detection.locate_sphere_circle(det, self.intrinsics, self.radius_m)
-            else:
-                self._locate = lambda det: detection.locate_sphere_ellipse(
-                    det, self.intrinsics, self.radius_m, distortion=self.lens
-                )
+            circle = lambda det: detection.locate_sphere_circle(det, self.intrinsics, self.radius_m)
+            ellipse = lambda det: detection.locate_sphere_ellipse(det, self.intrinsics, self.radius_m, distortion=self.lens)
+            self._methods = (circle, ellipse) if config.sphere_method == "circle" else (ellipse, circle)
         else:
             self.detector = detection.ArucoTracker(
                 self.intrinsics, marker_length_m=0.30, refinement=config.aruco_refinement, distortion=self.lens
@@ -268,14 +271,14 @@ class _Estimator:
         if self.config.target == "sphere":
             det = self.detector.detect(image)
             if det is None:
-                return None, None
-            p = self._locate(det)
-            return np.asarray(det.center_px, float), (None if p is None else np.asarray(p, float))
-        poses = self.detector.detect(image)
-        pose = poses.get(0)
+                return None, None, None
+            p, alt = (m(det) for m in self._methods)
+            as_array = lambda x: None if x is None else np.asarray(x, float)
+            return np.asarray(det.center_px, float), as_array(p), as_array(alt)
+        pose = self.detector.detect(image).get(0)
         if pose is None:
-            return None, None
-        return np.asarray(pose.center_px, float), np.asarray(pose.t_cam_marker_m, float)
+            return None, None, None
+        return np.asarray(pose.center_px, float), np.asarray(pose.t_cam_marker_m, float), None
 
 
 def make_renderer(config: TrackingConfig):
@@ -364,7 +367,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
             noisy = image.astype(np.float32) + rng.normal(0.0, config.noise_std, image.shape)
             image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         t1 = time.perf_counter()
-        uv, p_cam = estimate(image)
+        uv, p_cam, p_cam_alt = estimate(image)
         timing["detect_s"] += time.perf_counter() - t1
         timing["render_s"] += t1 - t0
 
@@ -377,11 +380,16 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         p_cam_est = p_cam if detected else np.full(3, np.nan)
         d_true = float(np.linalg.norm(p_cam_true))
         d_est = float(np.linalg.norm(p_cam_est)) if detected else math.nan
+        alt_ok = p_cam_alt is not None and bool(np.all(np.isfinite(p_cam_alt)))
+        p_cam_alt = p_cam_alt if alt_ok else np.full(3, np.nan)
+        p_alt = R @ p_cam_alt + c
+        d_alt = float(np.linalg.norm(p_cam_alt))
         u, v = (uv if uv is not None else (math.nan, math.nan))
         rows.append(
             (k, t_s, detected, *p_true, *p_est, *p_cam_true, *p_cam_est, d_true, d_est,
              abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
-             *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd)
+             *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
+             alt_ok, *p_alt, *p_cam_alt, d_alt, abs(d_alt - d_true))
         )
 
         # Outer loop: the measurement of frame k reaches it latency_frames frames later.
@@ -412,6 +420,8 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         "d_true_m", "d_est_m", "abs_error_m", "u_px", "v_px", "offset_px",
         "true_u_px", "true_v_px", "true_offset_px",
         "q_yaw_rad", "q_roll_rad", "q_pitch_rad", "qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s",
+        "alt_detected", "alt_est_x_m", "alt_est_y_m", "alt_est_z_m",
+        "alt_est_cam_x_m", "alt_est_cam_y_m", "alt_est_cam_z_m", "alt_d_est_m", "alt_abs_error_m",
     ]
     table = pd.DataFrame.from_records(rows, columns=columns)
     return TrackingResult(config=config, frames=table, timing=timing)
