@@ -58,8 +58,11 @@ __all__ = [
 #: directions with that weight: ∫cos²φ dφ / (2∫cos φ dφ) over [0, π/4] = (π/8 + 1/4)/√2 ≈ 0.4545.
 CONTOUR_EDGE_INSET_PX = (math.pi / 8 + 0.25) / math.sqrt(2)
 
-_RED_LOWER = ((0, 120, 60), (170, 120, 60))
-_RED_UPPER = ((10, 255, 255), (180, 255, 255))
+# Saturated red, two hue ranges because red wraps around 0/180. The bounds put the blob's edge
+# near half coverage of the anti-aliased rim on the study's backgrounds: a rim pixel half red,
+# half sky has hue ≈ 168–170 and saturation ≈ 100; half red, half grass has hue ≈ 10.
+_RED_LOWER = ((0, 100, 50), (169, 100, 50))
+_RED_UPPER = ((9, 255, 255), (180, 255, 255))
 
 
 def _check_rgb(rgb) -> np.ndarray:
@@ -243,7 +246,11 @@ class SphereDetector:
     hsv_lower, hsv_upper : (H, S, V) triple or sequence of triples
         Inclusive threshold ranges in OpenCV's 8-bit HSV (H 0–180, S and V 0–255); a pixel is
         foreground when it lies in any of the ranges. The default selects a saturated red with
-        two ranges, H ∈ [0, 10] ∪ [170, 180], because red wraps around hue 0.
+        two ranges, H ∈ [0, 9] ∪ [169, 180] (S ≥ 100, V ≥ 50), because red wraps around hue 0.
+        The bounds also decide where the blob's edge falls on the anti-aliased rim (a rim pixel
+        half red, half sky has H ≈ 168–170, S ≈ 100): they are set near half coverage on the
+        study's sky and ground. The enclosing circle's radius rests on two or three extreme
+        pixels, so the circle method is sensitive to them (a few tenths of a pixel).
     min_area_px : float
         Smallest contour area (px², > 0) accepted as a target; smaller blobs mean "no target".
     reject_border : bool
