@@ -19,6 +19,7 @@ from gimbal_lab.control import (
     relay_experiment,
     relay_ultimate_gain,
     simulate_axis,
+    simulate_pointing,
     step_metrics,
     ultimate_gain,
     ziegler_nichols,
@@ -271,22 +272,25 @@ def _gimbal(q):
     return R, R.T @ axes_world
 
 
-def _pixel(point_world, q, K):
-    R, _ = _gimbal(q)
-    return project((R.T @ point_world)[None, :], K)[0]
+def _camera_pose(q):
+    R, J = _gimbal(q)
+    T = np.eye(4)
+    T[:3, :3] = R
+    return T, J
 
 
-def _run(loop, target, K, duration_s, fps=30.0, q0=(0.0, 0.0, 0.0)):
-    q = np.array(q0, float)
-    dt = 1.0 / fps
-    errors, qs = [], []
-    for k in range(int(round(duration_s * fps))):
-        uv = _pixel(target(k * dt), q, K)
-        _, J = _gimbal(q)
-        q = q + dt * loop.update(uv, dt, J, q)  # inner loop assumed to track the rate exactly
-        errors.append(uv - [K.cx, K.cy])
-        qs.append(q.copy())
-    return np.array(errors), np.array(qs)
+def _run(loop, target, K, duration_s, fps=30.0):
+    # the joints integrate the rate references exactly (ideal inner loop)
+    sim = simulate_pointing(loop, _camera_pose, target, duration_s, fps)
+    return sim.error_px, sim.q_rad
+
+
+def test_simulate_pointing_projects_like_camera_project():
+    K = Intrinsics.default()
+    target = np.array([3.0, -0.65, -0.3])
+    sim = simulate_pointing(ImageLoop(K), _camera_pose, lambda t: target, 0.5)
+    R, _ = _gimbal(sim.q_rad[7])
+    assert sim.uv_px[7] == pytest.approx(project((R.T @ target)[None, :], K)[0], abs=1e-9)
 
 
 def test_image_loop_signs():

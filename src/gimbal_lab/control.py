@@ -63,6 +63,9 @@ __all__ = [
     "closed_loop",
     "simulate_axis",
     "step_metrics",
+    "compare_tunings",
+    "PointingSimulation",
+    "simulate_pointing",
     "AXES",
 ]
 
@@ -1114,3 +1117,125 @@ def step_metrics(t, y, final_value: float | None = None, settling_threshold: flo
         "rise_time_s": float(info["RiseTime"]),
         "peak": float(info["Peak"]),
     }
+
+
+def compare_tunings(
+    plant: AxisPlant,
+    gains_by_label: dict,
+    reference: float = 1.0,
+    duration_s: float = 0.1,
+    dt_s: float = 1e-3,
+    anti_windup: str = "back_calculation",
+):
+    """Rate-step responses of several tunings of one axis and their step metrics.
+
+    Parameters
+    ----------
+    plant : AxisPlant
+    gains_by_label : dict of str -> PIDGains
+    reference : float
+        Rate step, rad/s (small enough to stay linear by default).
+    duration_s, dt_s : float
+        Simulation length and step, s.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        One row per label: kp, ki, kd, overshoot_pct, settling_time_s (2 %), rise_time_s and
+        the final value (of the true rate; a P loop keeps a steady-state error).
+    sims : dict of str -> AxisSimulation
+    """
+    import pandas as pd
+
+    rows, sims = [], {}
+    for label, gains in gains_by_label.items():
+        sim = simulate_axis(
+            plant, RateLoop(plant, gains, dt_s, anti_windup), reference, None, duration_s=duration_s, dt_s=dt_s
+        )
+        sims[label] = sim
+        metrics = step_metrics(sim.t, sim.rate)
+        rows.append(dict(label=label, kp=gains.kp, ki=gains.ki, kd=gains.kd, **metrics, final=float(sim.rate[-1])))
+    return pd.DataFrame(rows).set_index("label"), sims
+
+
+@dataclass(frozen=True)
+class PointingSimulation:
+    """Result of ``simulate_pointing``; N frames.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Frame times, s.
+    uv_px : ndarray, shape (N, 2)
+        Target pixel seen in each frame (NaN when outside the image or lost).
+    error_px : ndarray, shape (N, 2)
+        (u − cx, v − cy), px — the offset from the image centre (the loop's e with the sign flipped).
+    q_rad : ndarray, shape (N, 3)
+        Joint angles at each frame, rad.
+    qdot_rad_s : ndarray, shape (N, 3)
+        Joint-rate references produced at each frame, rad/s.
+    """
+
+    t: np.ndarray
+    uv_px: np.ndarray
+    error_px: np.ndarray
+    q_rad: np.ndarray
+    qdot_rad_s: np.ndarray
+
+
+def simulate_pointing(
+    image_loop: ImageLoop,
+    camera_pose: Callable,
+    target_world: Callable,
+    duration_s: float,
+    fps: float = 30.0,
+    q0_rad=(0.0, 0.0, 0.0),
+    visible: Callable | None = None,
+) -> PointingSimulation:
+    """Outer loop alone: the joints follow the rate references exactly (ideal inner loop).
+
+    Each frame the target point is projected with the pinhole camera (``camera.project``), the
+    loop turns its pixel into joint rates, and the joint angles integrate them over the frame.
+
+    Parameters
+    ----------
+    image_loop : ImageLoop
+        Reset first.
+    camera_pose : callable q -> (T_world_cam (4, 4), J_cam (3, 3))
+        Camera pose and camera-frame angular Jacobian at joint angles q, e.g. from
+        ``kinematics.GimbalKinematics``.
+    target_world : callable t -> ndarray, shape (3,)
+        Target position in the world, m.
+    duration_s, fps : float
+        Length, s, and frame rate, 1/s.
+    q0_rad : array_like, shape (3,)
+        Initial joint angles, rad.
+    visible : callable t -> bool, optional
+        False makes the frame a "no detection" (e.g. an occlusion).
+    """
+    from .camera import project
+
+    image_loop.reset()
+    fps = _check_real("fps", fps, low=0.0, low_open=True)
+    n = int(round(_check_real("duration_s", duration_s, low=0.0, low_open=True) * fps))
+    dt = 1.0 / fps
+    K = image_loop.intrinsics
+    q = np.asarray(q0_rad, dtype=float).copy()
+    t = np.arange(n) * dt
+    uvs, qs, qds = np.full((n, 2), np.nan), np.empty((n, 3)), np.empty((n, 3))
+    for k in range(n):
+        T_world_cam, J_cam = camera_pose(q)
+        T_world_cam = np.asarray(T_world_cam, dtype=float)
+        p_cam = T_world_cam[:3, :3].T @ (np.asarray(target_world(t[k]), float) - T_world_cam[:3, 3])
+        uv = project(p_cam[None, :], K, image_loop.distortion)[0]
+        inside = bool(np.all(np.isfinite(uv))) and 0 <= uv[0] <= K.width - 1 and 0 <= uv[1] <= K.height - 1
+        if visible is not None and not visible(t[k]):
+            inside = False
+        if inside:
+            uvs[k] = uv
+        qs[k] = q
+        qdot = image_loop.update(uv if inside else None, dt, J_cam, q)
+        qds[k] = qdot
+        q = q + dt * qdot
+    error = uvs - np.array([K.cx, K.cy])
+    return PointingSimulation(t, uvs, error, qs, qds)
