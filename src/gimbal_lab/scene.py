@@ -249,8 +249,20 @@ def _create_platform(width: int, height: int):
         if name == "egl":
             from pyrender.platforms import egl
 
+            class _EGLPlatform(egl.EGLPlatform):
+                def delete_context(self):
+                    # Destroy this context only. pyrender also calls eglTerminate, but every
+                    # renderer on a device shares one EGL display, so that would invalidate the
+                    # contexts of all other live renderers in the process.
+                    from OpenGL.EGL import EGL_NO_CONTEXT, EGL_NO_SURFACE, eglDestroyContext, eglMakeCurrent
+
+                    if self._egl_context is not None:
+                        eglMakeCurrent(self._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+                        eglDestroyContext(self._egl_display, self._egl_context)
+                        self._egl_context = None
+
             device = egl.get_device_by_index(int(os.environ.get("EGL_DEVICE_ID", "0")))
-            platform = egl.EGLPlatform(width, height, device=device)
+            platform = _EGLPlatform(width, height, device=device)
         elif name == "osmesa":
             from pyrender.platforms.osmesa import OSMesaPlatform
 
