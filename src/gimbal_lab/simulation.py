@@ -90,6 +90,11 @@ class TrackingConfig:
         Paper's enclosing-circle estimate, or the exact cone (ellipse) method.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
         OpenCV corner refinement (the paper does not say; OpenCV's default is none).
+    outer_loop : {"predictive", "image"}
+        Active mode's outer loop: "image" is the paper's PI law on the pixel error
+        (:class:`gimbal_lab.control.ImageLoop`); "predictive" filters the line of sight and feeds
+        its rate forward (:class:`gimbal_lab.tracking.PredictiveLoop`), which removes the lag
+        that one frame of latency imposes on pure feedback.
     calibrated : bool
         True: the estimators know the lens model (undistort contours / pass coefficients to
         solvePnP). False (paper): they assume a pinhole camera whatever the lens.
@@ -115,6 +120,7 @@ class TrackingConfig:
     latency_frames: int = 1
     sphere_method: str = "circle"
     aruco_refinement: str = "none"
+    outer_loop: str = "predictive"
     calibrated: bool = False
     exposure_s: float = 0.0
     n_subframes: int = 1
@@ -127,6 +133,7 @@ class TrackingConfig:
         _choice("mode", self.mode, _MODES)
         _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
         _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
+        _choice("outer_loop", self.outer_loop, ("predictive", "image"))
         if not isinstance(self.distortion, BrownConrady):
             _choice("distortion", self.distortion, _DISTORTIONS)
         for name in ("revolutions", "period_s", "fps", "inner_rate_hz", "hfov_rad"):
@@ -310,6 +317,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     """
     from .control import AxisPlant, GimbalAxis, ImageLoop, RateLoop
     from .kinematics import GimbalKinematics
+    from .tracking import PredictiveLoop
 
     if not isinstance(config, TrackingConfig):
         raise TypeError("config must be a TrackingConfig")
@@ -330,7 +338,12 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
     axes = [GimbalAxis(p, dt_s) for p in plants]
     rate_loops = [RateLoop(p, dt_s=dt_s) for p in plants]
-    image_loop = ImageLoop(K) if config.mode == "active" else None
+    pixel_lens = lens if config.calibrated else None
+    image_loop = predictive = None
+    if config.mode == "active" and config.outer_loop == "image":
+        image_loop = ImageLoop(K, distortion=pixel_lens)
+    elif config.mode == "active":
+        predictive = PredictiveLoop(K, kin, distortion=pixel_lens)
 
     n_frames = config.n_frames
     n_steps = int(round(n_frames / config.fps * config.inner_rate_hz))
@@ -393,15 +406,16 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         )
 
         # Outer loop: the measurement of frame k reaches it latency_frames frames later.
-        pending.append(uv)
-        if image_loop is not None:
-            if len(pending) > config.latency_frames:
-                measured = pending.popleft()
+        pending.append((t_s, uv, q))
+        if len(pending) > config.latency_frames:
+            t_capture, measured, q_capture = pending.popleft()
+            if image_loop is not None:
                 J_cam = kin.angular_jacobian(q, frame="camera")
                 rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q), float)
-        else:
-            if len(pending) > config.latency_frames:
-                pending.popleft()
+            elif predictive is not None:
+                predictive.observe(t_capture, measured, q_capture)
+        if predictive is not None:
+            rate_ref = predictive.command(t_s, q)
 
         # Inner loops and axis dynamics until the next frame.
         for _ in range(frame_steps[k + 1] - frame_steps[k]):
