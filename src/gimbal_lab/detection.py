@@ -692,6 +692,9 @@ REFINEMENT_MODES = {
 """Corner refinement names accepted by :class:`ArucoTracker` and their OpenCV constants."""
 
 
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0])
+
+
 @dataclass(frozen=True, eq=False)
 class MarkerPose:
     """Pose of one marker in the camera optical frame.
@@ -744,6 +747,15 @@ class ArucoTracker:
     ``cv2.solvePnP(..., SOLVEPNP_IPPE_SQUARE)`` with the object corners (−L/2, L/2, 0),
     (L/2, L/2, 0), (L/2, −L/2, 0), (−L/2, −L/2, 0) in the marker frame (x right, y up on the
     printed marker, z out of its face).
+
+    A marker facing the camera is rotated by about π from the camera (its z axis points back at
+    the camera), and a marker turned only about its vertical axis is rotated by exactly π. There
+    OpenCV 5.0's IPPE solvers return a wrong rotation (tested: reprojection errors of tens of
+    pixels; the translation stays right). The pose is therefore solved for the marker frame
+    turned by π about its x axis, F (y down, z into the marker), which sees the camera with a
+    rotation near identity: the same IPPE-square call with the image corners in the order
+    (3, 2, 1, 0), which are F's corners in IPPE-square's order, then
+    R_cam_marker = R_cam_F · diag(1, −1, −1); the translation is common to both frames.
 
     Parameters
     ----------
@@ -828,26 +840,51 @@ class ArucoTracker:
         if ids is None:
             return poses
         for quad, marker_id in zip(corners, ids.reshape(-1)):
-            image_points = quad.reshape(4, 2).astype(float)
-            ok, rvec, tvec = cv2.solvePnP(
-                self.object_points_m, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-            )
-            if not ok:
+            pose = self.pose_from_corners(quad.reshape(4, 2), int(marker_id))
+            if pose is None:
                 continue
-            marker_id = int(marker_id)
-            if marker_id in poses and cv2.contourArea(poses[marker_id].corners_px.astype(np.float32)) >= cv2.contourArea(
-                quad.reshape(4, 2)
-            ):
-                continue
-            reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
-            residual = reprojected.reshape(4, 2) - image_points
-            poses[marker_id] = MarkerPose(
-                marker_id=marker_id,
-                corners_px=image_points,
-                rvec=rvec.reshape(3),
-                R_cam_marker=cv2.Rodrigues(rvec)[0],
-                t_cam_marker_m=tvec.reshape(3),
-                center_px=image_points.mean(axis=0),
-                reprojection_error_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
-            )
+            previous = poses.get(pose.marker_id)
+            if previous is None or _quad_area(pose.corners_px) > _quad_area(previous.corners_px):
+                poses[pose.marker_id] = pose
         return poses
+
+    def pose_from_corners(self, corners_px, marker_id: int = 0) -> MarkerPose | None:
+        """Pose of one marker from its four image corners (the pose step of :meth:`detect`).
+
+        Parameters
+        ----------
+        corners_px : array_like, shape (4, 2)
+            Corners in ``cv2.aruco``'s order, pixels of the image the tracker sees (raw, or
+            rectified when a rectifier is configured).
+        marker_id : int
+
+        Returns
+        -------
+        MarkerPose or None
+            None when ``solvePnP`` fails.
+        """
+        image_points = np.asarray(corners_px, dtype=float).reshape(4, 2)
+        if not np.all(np.isfinite(image_points)):
+            return None
+        ok, rvec_f, tvec = cv2.solvePnP(
+            self.object_points_m, image_points[::-1].copy(), self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+        )
+        if not ok or not (np.all(np.isfinite(rvec_f)) and np.all(np.isfinite(tvec))):
+            return None
+        R_cam_marker = cv2.Rodrigues(rvec_f)[0] @ _FLIP_YZ
+        rvec = cv2.Rodrigues(R_cam_marker)[0]
+        reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
+        residual = reprojected.reshape(4, 2) - image_points
+        return MarkerPose(
+            marker_id=int(marker_id),
+            corners_px=image_points,
+            rvec=rvec.reshape(3),
+            R_cam_marker=R_cam_marker,
+            t_cam_marker_m=tvec.reshape(3),
+            center_px=image_points.mean(axis=0),
+            reprojection_error_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
+        )
+
+
+def _quad_area(corners_px: np.ndarray) -> float:
+    return abs(cv2.contourArea(corners_px.astype(np.float32)))

@@ -1,0 +1,531 @@
+"""Detectors and 3-D localisation.
+
+Oracles: the sphere's exact silhouette built from its circle of tangency (checked here by
+tangency itself), the closed form of the circle method derived in
+``detection.circle_method_estimate``, OpenCV (``fitEllipse``, ``undistort``, ``solvePnP``
+reprojection), and frames rendered at known poses by ``gimbal_lab.scene``.
+"""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from gimbal_lab.camera import BrownConrady, Intrinsics, project
+from gimbal_lab.detection import (
+    CONTOUR_EDGE_INSET_PX,
+    REFINEMENT_MODES,
+    ArucoTracker,
+    Rectifier,
+    SphereDetection,
+    SphereDetector,
+    circle_method_estimate,
+    conic_to_ellipse,
+    fit_conic,
+    locate_sphere_circle,
+    locate_sphere_ellipse,
+    sphere_silhouette_px,
+)
+
+CAM = Intrinsics.default()
+DIST = BrownConrady.default()
+RADIUS_M = 0.10
+# DESIGN.md's figures are quoted for f = 800 px; a 1024 × 768 image keeps 20° off axis in view.
+CAM_800 = Intrinsics(800.0, 800.0, 511.5, 383.5, 1024, 768)
+
+# Home camera of the study: at world (0, 0, 2) looking along +x (OpenCV optical axes).
+T_WORLD_CAM = np.array([[0.0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 2], [0, 0, 0, 1]])
+R_WORLD_MARKER = np.array([[0.0, 0, -1], [-1, 0, 0], [0, 1, 0]])  # facing the home camera
+
+
+def analytic_detection(center_cam, intrinsics=CAM, distortion=None, n=720):
+    """A SphereDetection whose contour lies exactly on the true silhouette edge."""
+    contour = sphere_silhouette_px(center_cam, RADIUS_M, intrinsics, distortion, n_points=n)
+    # OpenCV's enclosing circle works in float32: hand it coordinates relative to the mean.
+    mean = contour.mean(axis=0)
+    centre, radius = cv2.minEnclosingCircle((contour - mean).astype(np.float32))
+    return SphereDetection(center_px=mean + centre, radius_px=radius, contour_px=contour, area_px=1.0)
+
+
+def random_centres_in_view(n, distortion=None, seed=0, depth=(1.0, 8.0)):
+    """Sphere centres whose whole silhouette lies inside the 640 × 480 frame (with and without the lens)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        z = rng.uniform(*depth)
+        x, y = rng.uniform(-0.6, 0.6) * z, rng.uniform(-0.45, 0.45) * z
+        lenses = (None,) if distortion is None else (None, distortion)
+        edges = [sphere_silhouette_px((x, y, z), RADIUS_M, CAM, lens, n_points=64) for lens in lenses]
+        if all(np.all((e >= 1) & (e <= [CAM.width - 2, CAM.height - 2])) for e in edges):
+            out.append((x, y, z))
+    return np.array(out)
+
+
+def disc_image(center_px, radius_px, size=(400, 400)):
+    """Binary disc: pixels whose centre lies inside the circle (an ideal half-coverage mask)."""
+    yy, xx = np.mgrid[0 : size[1], 0 : size[0]]
+    return ((((xx - center_px[0]) ** 2 + (yy - center_px[1]) ** 2) < radius_px**2) * 255).astype(np.uint8)
+
+
+def red_disc_rgb(center_px, radius_px, colour=(230, 20, 20), size=(640, 480), background=(140, 184, 235)):
+    img = np.empty((size[1], size[0], 3), np.uint8)
+    img[:] = background
+    cv2.circle(img, (int(center_px[0]), int(center_px[1])), int(radius_px), colour, -1)
+    return img
+
+
+# ------------------------------------------------------------------------------------------
+# Analytic geometry: silhouette, conic fit, exact cone method
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("distortion", [None, DIST])
+def test_silhouette_points_are_tangent_rays(distortion):
+    centre = np.array([0.7, -0.4, 3.0])
+    uv = sphere_silhouette_px(centre, RADIUS_M, CAM, distortion, n_points=90)
+    # Back-project through the same lens model (its inverse is tested in test_camera).
+    from gimbal_lab.camera import backproject
+
+    rays = backproject(uv, CAM, distortion)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    # Distance from the centre to each ray is the radius: the ray grazes the sphere.
+    distance = np.linalg.norm(np.cross(rays, centre), axis=1)
+    assert np.allclose(distance, RADIUS_M, rtol=0, atol=1e-9)  # undistort converges to 1e-12
+
+
+def test_fit_conic_is_exact_on_an_ellipse_and_recovers_its_parameters():
+    phi = np.linspace(0, 2 * np.pi, 50, endpoint=False)
+    a, b, angle, centre = 40.0, 25.0, 0.6, np.array([210.3, 140.8])
+    rot = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    pts = centre + np.column_stack((a * np.cos(phi), b * np.sin(phi))) @ rot.T
+    got_centre, semi, got_angle = conic_to_ellipse(fit_conic(pts))
+    assert np.allclose(got_centre, centre, atol=1e-9)
+    assert np.allclose(semi, (a, b), atol=1e-9)
+    assert got_angle == pytest.approx(angle, abs=1e-9)
+
+
+def test_fit_conic_agrees_with_opencv_fit_ellipse_on_a_rasterised_ellipse():
+    mask = np.zeros((300, 400), np.uint8)
+    cv2.ellipse(mask, (200, 150), (90, 50), 30, 0, 360, 255, -1)
+    contour = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0].reshape(-1, 2)
+    centre, semi, angle = conic_to_ellipse(fit_conic(contour))
+    (ox, oy), (w, h), oangle = cv2.fitEllipse(contour.astype(np.float32))
+    # Two least-squares fits of the same staircase with different objectives: they agree to a
+    # small fraction of a pixel, not exactly.
+    assert np.allclose(centre, (ox, oy), atol=0.05)
+    assert np.allclose(sorted(semi), sorted((w / 2, h / 2)), atol=0.1)
+    major_deg = math.degrees(angle)
+    opencv_major_deg = oangle if w >= h else (oangle + 90) % 180
+    assert min(abs(major_deg - opencv_major_deg), 180 - abs(major_deg - opencv_major_deg)) < 0.5
+
+
+@pytest.mark.parametrize("distortion", [None, DIST])
+def test_exact_method_recovers_centre_anywhere_in_the_image(distortion):
+    centres = random_centres_in_view(40, distortion, seed=1)
+    for centre in centres:
+        det = analytic_detection(centre, distortion=distortion)
+        got = locate_sphere_ellipse(det, CAM, RADIUS_M, distortion)
+        # Noise-free points on the cone: only rounding remains (1e-11 measured).
+        assert np.linalg.norm(got - centre) <= 1e-6 * np.linalg.norm(centre)
+
+
+def test_exact_method_without_the_lens_model_is_wrong_on_distorted_contours():
+    centre = np.array([1.2, 0.8, 3.0])  # far off axis, where the default lens bends most
+    det = analytic_detection(centre, distortion=DIST)
+    ignored = locate_sphere_ellipse(det, CAM, RADIUS_M, None)
+    assert np.linalg.norm(ignored - centre) > 0.01 * np.linalg.norm(centre)
+
+
+@pytest.mark.parametrize(
+    "contour",
+    [
+        np.zeros((0, 2)),
+        np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0], [4.0, 4.0]]),
+        np.column_stack((np.arange(10.0), 2 * np.arange(10.0))),  # collinear
+        np.column_stack((np.linspace(0.5, 5, 30), 1.0 / np.linspace(0.5, 5, 30))),  # hyperbola
+    ],
+)
+def test_exact_method_returns_none_on_degenerate_contours(contour):
+    det = SphereDetection(center_px=(10.0, 10.0), radius_px=3.0, contour_px=contour, area_px=1.0)
+    assert locate_sphere_ellipse(det, CAM, RADIUS_M) is None
+
+
+# ------------------------------------------------------------------------------------------
+# The paper's circle method and its geometric bias
+# ------------------------------------------------------------------------------------------
+
+
+def test_circle_method_by_hand():
+    # Circle of R = 10 px centred 0.1·fx right of the principal point: d = r·f/R, x0 = d·(0.1, 0, 1).
+    det = SphereDetection(center_px=(CAM.cx + 0.1 * CAM.fx, CAM.cy), radius_px=10.0, contour_px=np.zeros((0, 2)), area_px=1.0)
+    d = RADIUS_M * CAM.fx / 10.0
+    assert np.allclose(locate_sphere_circle(det, CAM, RADIUS_M), (0.1 * d, 0.0, d), rtol=1e-12)
+
+
+@pytest.mark.parametrize("distance_m", [2.0, 3.0, 6.0])
+@pytest.mark.parametrize("theta_deg", [0.0, 5.0, 15.0, 20.0, 25.0])
+@pytest.mark.parametrize("azimuth_deg", [0.0, 135.0])
+def test_circle_method_on_analytic_silhouettes_matches_the_closed_form(distance_m, theta_deg, azimuth_deg):
+    theta, azimuth = math.radians(theta_deg), math.radians(azimuth_deg)
+    centre = distance_m * np.array(
+        [math.sin(theta) * math.cos(azimuth), math.sin(theta) * math.sin(azimuth), math.cos(theta)]
+    )
+    det = analytic_detection(centre, intrinsics=CAM_800, n=4000)
+    got = locate_sphere_circle(det, CAM_800, RADIUS_M)
+    range_m, depth_m = circle_method_estimate(distance_m, RADIUS_M, theta)
+    # minEnclosingCircle works in float32 (on mean-centred points here) and pads its radius so
+    # that it surely encloses them; 3e-4 px of radius is a relative error of 3e-4/R in range.
+    tol_m = distance_m * 3e-4 / det.radius_px
+    assert np.linalg.norm(got) == pytest.approx(range_m, abs=tol_m)
+    assert got[2] == pytest.approx(depth_m, abs=tol_m)
+
+
+def test_circle_method_bias_reproduces_design_figures():
+    # DESIGN.md: D = 3 m, r = 0.1 m, f = 800 px; "error" = |d_est − d_true| with d the range from
+    # the optical centre to the sphere centre (the study's metric). Closed form: 1.667, 103.8, 182.5 mm.
+    expected_mm = {0.0: 1.7, 15.0: 100.0, 20.0: 180.0}
+    for theta_deg, figure_mm in expected_mm.items():
+        range_m, _ = circle_method_estimate(3.0, RADIUS_M, math.radians(theta_deg))
+        assert (3.0 - range_m) * 1e3 == pytest.approx(figure_mm, rel=0.10)
+        # and on the analytic silhouette seen by the f = 800 px camera
+        theta = math.radians(theta_deg)
+        det = analytic_detection(3.0 * np.array([math.sin(theta), 0, math.cos(theta)]), intrinsics=CAM_800, n=4000)
+        measured_mm = (3.0 - np.linalg.norm(locate_sphere_circle(det, CAM_800, RADIUS_M))) * 1e3
+        assert measured_mm == pytest.approx(figure_mm, rel=0.10)
+
+
+def test_circle_method_bias_on_axis_is_r2_over_2d_and_grows_off_axis():
+    for distance_m in (1.0, 3.0, 10.0):
+        range_m, _ = circle_method_estimate(distance_m, RADIUS_M, 0.0)
+        # D(1 − cos α) = r²/(2D)·(1 + O(r²/D²)): 1 % covers r/D ≤ 0.1.
+        assert distance_m - range_m == pytest.approx(RADIUS_M**2 / (2 * distance_m), rel=0.01)
+    thetas = np.radians(np.linspace(0, 30, 31))
+    error = 3.0 - circle_method_estimate(3.0, RADIUS_M, thetas)[0]
+    assert np.all(np.diff(error) > 0)
+    # far from the axis the bias is mostly D(1 − cos θ)
+    assert error[-1] == pytest.approx(3.0 * (1 - math.cos(thetas[-1])), rel=0.01)
+
+
+# ------------------------------------------------------------------------------------------
+# Half-pixel inset of boundary-pixel contours
+# ------------------------------------------------------------------------------------------
+
+
+def test_boundary_pixel_inset_matches_its_derivation_and_the_correction_removes_it():
+    rng = np.random.default_rng(3)
+    raw, corrected = [], []
+    for _ in range(20):
+        centre, radius = rng.uniform(180, 220, 2), 150.3
+        contour = cv2.findContours(disc_image(centre, radius), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0]
+        contour = contour.reshape(-1, 2).astype(float)
+        raw.append(radius - conic_to_ellipse(fit_conic(contour))[1].mean())
+        det = SphereDetection(centre, radius, contour, 1.0, edge_inset_px=CONTOUR_EDGE_INSET_PX)
+        from gimbal_lab.detection import _push_outward
+
+        corrected.append(radius - conic_to_ellipse(fit_conic(_push_outward(contour, det.edge_inset_px)))[1].mean())
+    # Derived mean inset 0.4545 px; on large discs the fitted radius is short by that (±0.01 px:
+    # the staircase's spread over 20 random sub-pixel centres).
+    assert np.mean(raw) == pytest.approx(CONTOUR_EDGE_INSET_PX, abs=0.01)
+    assert abs(np.mean(corrected)) < 0.01
+
+
+# ------------------------------------------------------------------------------------------
+# The detector on drawn images, and robustness
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("hue", [0, 4, 172, 178])
+def test_red_is_detected_on_both_sides_of_the_hue_wrap(hue):
+    rgb_colour = cv2.cvtColor(np.uint8([[[hue, 230, 220]]]), cv2.COLOR_HSV2RGB)[0, 0].tolist()
+    det = SphereDetector().detect(red_disc_rgb((300, 200), 30, colour=rgb_colour))
+    assert det is not None
+    # cv2.circle's digital disc of radius 30: centre exact, enclosing radius within one pixel.
+    assert np.allclose(det.center_px, (300, 200), atol=0.5)
+    assert det.radius_px == pytest.approx(30, abs=1.0)
+    assert not det.touches_border
+
+
+def test_rgb_order_is_respected():
+    # A BGR-ordered red disc is blue to an RGB detector.
+    assert SphereDetector().detect(red_disc_rgb((300, 200), 30)[..., ::-1].copy()) is None
+
+
+def test_two_red_blobs_keep_the_larger():
+    img = red_disc_rgb((150, 200), 15)
+    cv2.circle(img, (450, 250), 40, (230, 20, 20), -1)
+    det = SphereDetector().detect(img)
+    assert np.allclose(det.center_px, (450, 250), atol=0.5)
+
+
+def test_partly_outside_is_flagged_and_can_be_rejected():
+    img = red_disc_rgb((10, 200), 40)
+    det = SphereDetector().detect(img)
+    assert det is not None and det.touches_border
+    assert SphereDetector(reject_border=True).detect(img) is None
+    # a second, fully visible blob is used instead when border blobs are rejected
+    cv2.circle(img, (400, 250), 20, (230, 20, 20), -1)
+    assert np.allclose(SphereDetector(reject_border=True).detect(img).center_px, (400, 250), atol=0.5)
+
+
+def test_robustness_outcomes():
+    det = SphereDetector()
+    h, w = 480, 640
+    assert det.detect(np.full((h, w, 3), 255, np.uint8)) is None  # blank white
+    assert det.detect(np.zeros((h, w, 3), np.uint8)) is None  # black
+    blue = red_disc_rgb((300, 200), 40, colour=(20, 20, 230))
+    assert det.detect(blue) is None  # wrong colour
+    noise = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    assert det.detect(noise) is None  # red speckles, none reaching min_area_px
+    # saturated red everywhere: one blob, the whole frame, touching the border
+    full = det.detect(np.full((h, w, 3), (255, 0, 0), np.uint8))
+    assert full is not None and full.touches_border
+    assert SphereDetector(reject_border=True).detect(np.full((h, w, 3), (255, 0, 0), np.uint8)) is None
+    # a blob smaller than min_area_px is no target
+    assert det.detect(red_disc_rgb((300, 200), 2)) is None
+    assert locate_sphere_ellipse(full, CAM, RADIUS_M) is None or np.all(np.isfinite(locate_sphere_ellipse(full, CAM, RADIUS_M)))
+
+
+def test_morphology_removes_speckle():
+    img = red_disc_rgb((300, 200), 30)
+    noise = np.random.default_rng(1).random((480, 640)) < 0.02
+    img[noise] = (230, 20, 20)
+    clean = SphereDetector(morphology_px=3).detect(img)
+    assert np.allclose(clean.center_px, (300, 200), atol=1.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(min_area_px=0),
+        dict(min_area_px=float("nan")),
+        dict(hsv_lower=(0, 0), hsv_upper=(10, 255, 255)),
+        dict(hsv_lower=(20, 0, 0), hsv_upper=(10, 255, 255)),
+        dict(hsv_lower=((0, 0, 0), (1, 1, 1)), hsv_upper=(10, 255, 255)),
+        dict(hsv_lower=(0, 0, -1), hsv_upper=(10, 255, 255)),
+        dict(morphology_px=-1),
+    ],
+)
+def test_bad_detector_config_raises_value_error(kwargs):
+    with pytest.raises(ValueError):
+        SphereDetector(**kwargs)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError, match="rgb"):
+        SphereDetector().detect(np.zeros((10, 10), np.uint8))
+    with pytest.raises(ValueError, match="rgb"):
+        SphereDetector().detect(np.zeros((10, 10, 3), np.float32))
+    det = SphereDetection((1.0, 1.0), 1.0, np.zeros((0, 2)), 1.0)
+    with pytest.raises(ValueError, match="radius_m"):
+        locate_sphere_circle(det, CAM, -0.1)
+    with pytest.raises(ValueError, match="radius_px"):
+        SphereDetection((1.0, 1.0), 0.0, np.zeros((0, 2)), 1.0)
+    with pytest.raises(ValueError, match="refinement"):
+        ArucoTracker(CAM, refinement="best")
+    with pytest.raises(ValueError, match="rectifier or distortion"):
+        ArucoTracker(CAM, distortion=DIST, rectifier=Rectifier(CAM, DIST))
+    with pytest.raises(ValueError, match="rgb must be 480"):
+        Rectifier(CAM, DIST).rectify(np.zeros((10, 10, 3), np.uint8))
+
+
+TRACKER = ArucoTracker(CAM)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    image=arrays(
+        np.uint8,
+        st.tuples(st.integers(1, 48), st.integers(1, 48), st.just(3)),
+        elements=st.integers(0, 255),
+    )
+)
+def test_random_images_never_raise(image):
+    det = SphereDetector(min_area_px=1.0).detect(image)
+    if det is not None:
+        for estimate in (locate_sphere_circle(det, CAM, RADIUS_M), locate_sphere_ellipse(det, CAM, RADIUS_M)):
+            assert estimate is None or np.all(np.isfinite(estimate))
+        estimate = locate_sphere_ellipse(det, CAM, RADIUS_M, DIST)
+        assert estimate is None or np.all(np.isfinite(estimate))
+    assert isinstance(TRACKER.detect(image), dict)
+
+
+# ------------------------------------------------------------------------------------------
+# Rectifier
+# ------------------------------------------------------------------------------------------
+
+
+def test_rectifier_matches_cv2_undistort_and_moves_points_to_their_pinhole_pixel():
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), (0, 0), 3)
+    rect = Rectifier(CAM, DIST).rectify(img)
+    oracle = cv2.undistort(img, CAM.K, DIST.coefficients)
+    # Same maps; ours are fixed point (1/32 px), OpenCV's float: a grey level or two on a smooth image.
+    assert np.abs(rect.astype(int) - oracle.astype(int))[20:-20, 20:-20].max() <= 3
+    # A bright dot drawn where the lens puts a pinhole pixel lands back on that pixel.
+    target = np.array([[560.0, 400.0]])
+    from gimbal_lab.camera import distort_pixels
+
+    src = distort_pixels(target, CAM, DIST)[0]
+    dot = np.zeros((480, 640, 3), np.uint8)
+    cv2.circle(dot, (int(round(src[0] * 16)), int(round(src[1] * 16))), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)
+    out = Rectifier(CAM, DIST).rectify(dot)[..., 0].astype(float)
+    yy, xx = np.mgrid[0:480, 0:640]
+    centroid = np.array([(out * xx).sum(), (out * yy).sum()]) / out.sum()
+    # the dot's centroid moves with the local magnification (≈0.9 here): 0.3 px.
+    assert np.allclose(centroid, target[0], atol=0.3)
+
+
+# ------------------------------------------------------------------------------------------
+# Rendered frames
+# ------------------------------------------------------------------------------------------
+
+
+def sphere_pose_world(p_cam):
+    T = np.eye(4)
+    T[:3, 3] = (T_WORLD_CAM @ np.append(p_cam, 1.0))[:3]
+    return T
+
+
+@pytest.fixture(scope="module")
+def rendered_spheres():
+    """Pinhole and distorted frames of the sphere at 2–4 m depth, fully inside the frame."""
+    from gimbal_lab.scene import SceneRenderer
+
+    centres = np.vstack(([[0.0, 0.0, 2.0], [0.0, 0.0, 3.0], [0.0, 0.0, 4.0]], random_centres_in_view(9, DIST, seed=7, depth=(2.0, 4.0))))
+    frames = {}
+    for name, lens in (("pinhole", None), ("distorted", DIST)):
+        with SceneRenderer(CAM, distortion=lens, target="sphere") as scene:
+            frames[name] = [scene.render(T_WORLD_CAM, sphere_pose_world(c)) for c in centres]
+    return centres, frames
+
+
+def test_rendered_sphere_detected_and_exact_method_within_one_percent(rendered_spheres):
+    centres, frames = rendered_spheres
+    rectify = SphereDetector(rectifier=Rectifier(CAM, DIST))
+    for i, centre in enumerate(centres):
+        truth = np.linalg.norm(centre)
+        det = SphereDetector().detect(frames["pinhole"][i])
+        assert det is not None and not det.touches_border
+        # 1 %: the issue's requirement; segmentation of a 14–28 px blob moves its edge by ~0.1 px.
+        assert np.linalg.norm(locate_sphere_ellipse(det, CAM, RADIUS_M)) == pytest.approx(truth, rel=0.01)
+        raw = SphereDetector().detect(frames["distorted"][i])
+        assert raw is not None
+        est = locate_sphere_ellipse(raw, CAM, RADIUS_M, DIST)
+        assert np.linalg.norm(est) == pytest.approx(truth, rel=0.01)
+        rect = rectify.detect(frames["distorted"][i])
+        assert np.linalg.norm(locate_sphere_ellipse(rect, CAM, RADIUS_M)) == pytest.approx(truth, rel=0.01)
+
+
+def test_rendered_sphere_circle_method_within_one_percent_on_axis(rendered_spheres):
+    centres, frames = rendered_spheres
+    for i in range(3):  # the three on-axis frames, 2, 3 and 4 m
+        det = SphereDetector().detect(frames["pinhole"][i])
+        est = locate_sphere_circle(det, CAM, RADIUS_M)
+        assert np.linalg.norm(est) == pytest.approx(np.linalg.norm(centres[i]), rel=0.01)
+        assert np.hypot(*est[:2]) < 0.005 * est[2]  # centred: within 0.5 % laterally
+
+
+def marker_pose_world(p_cam, yaw_rad=0.0):
+    """Marker centred at p_cam (camera frame), turned by yaw_rad about the world vertical."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ R_WORLD_MARKER
+    T[:3, 3] = (T_WORLD_CAM @ np.append(p_cam, 1.0))[:3]
+    return T
+
+
+@pytest.fixture(scope="module")
+def rendered_markers():
+    from gimbal_lab.scene import SceneRenderer
+
+    cases = [((0.0, 0.0, 2.0), 0.0), ((0.0, 0.0, 3.0), 0.0), ((0.0, 0.0, 4.0), 0.0), ((0.5, -0.3, 2.5), 0.0),
+             ((-0.8, 0.4, 3.5), 0.0), ((0.2, 0.1, 3.0), math.radians(35))]
+    frames = {}
+    for name, lens in (("pinhole", None), ("distorted", DIST)):
+        with SceneRenderer(CAM, distortion=lens, target="aruco") as scene:
+            frames[name] = [scene.render(T_WORLD_CAM, marker_pose_world(p, yaw)) for p, yaw in cases]
+    truths = [np.linalg.inv(T_WORLD_CAM) @ marker_pose_world(p, yaw) for p, yaw in cases]
+    return truths, frames
+
+
+def test_rendered_marker_translation_within_one_percent(rendered_markers):
+    truths, frames = rendered_markers
+    tracker = ArucoTracker(CAM, refinement="subpix")
+    for truth, frame in zip(truths, frames["pinhole"]):
+        pose = tracker.detect(frame)[0]
+        err = np.linalg.norm(pose.t_cam_marker_m - truth[:3, 3])
+        # the issue's 1 % of distance; measured ≤ 0.7 % with sub-pixel corners
+        assert err < 0.01 * np.linalg.norm(truth[:3, 3])
+
+
+@pytest.mark.parametrize("refinement", sorted(REFINEMENT_MODES))
+def test_rendered_marker_found_with_right_corners_and_orientation_in_every_mode(rendered_markers, refinement):
+    truths, frames = rendered_markers
+    tracker = ArucoTracker(CAM, refinement=refinement)
+    for truth, frame in zip(truths, frames["pinhole"]):
+        poses = tracker.detect(frame)
+        assert list(poses) == [0]
+        pose = poses[0]
+        assert np.allclose(pose.center_px, pose.corners_px.mean(axis=0))
+        # corners agree with the projected model corners (renderer geometry is the oracle);
+        # unrefined corners come from the pixel-grid polygon: up to ~1 px measured.
+        model = project((truth @ np.c_[tracker.object_points_m, np.ones(4)].T).T[:, :3], CAM)
+        assert np.abs(pose.corners_px - model).max() < 1.5
+        # the marker's normal faces the camera as it truly does (a flipped solution is 180° off);
+        # a 1 px corner error on a 40 px marker tilts the plane by a few degrees.
+        angle = math.degrees(math.acos(np.clip(pose.R_cam_marker[:, 2] @ truth[:3, 2], -1, 1)))
+        assert angle < 5.0
+        assert pose.reprojection_error_px < 0.5
+        # Rodrigues round trip loses precision near a rotation by π (3e-8 measured)
+        assert np.allclose(cv2.Rodrigues(pose.rvec)[0], pose.R_cam_marker, atol=1e-6)
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 10.0, 35.0])
+@pytest.mark.parametrize("t_cam", [(0.0, 0.0, 3.0), (0.4, -0.2, 2.5)])
+def test_pose_from_corners_is_exact_for_a_marker_facing_the_camera(yaw_deg, t_cam):
+    # Facing the camera and turned about its vertical only: a rotation by exactly π, where
+    # OpenCV 5.0's IPPE returns a wrong rotation for the marker frame itself.
+    a = math.radians(yaw_deg)
+    R = np.diag([1.0, -1.0, -1.0]) @ np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    tracker = ArucoTracker(CAM)
+    corners, _ = cv2.projectPoints(tracker.object_points_m, cv2.Rodrigues(R)[0], np.array(t_cam), CAM.K, None)
+    pose = tracker.pose_from_corners(corners.reshape(4, 2))
+    # noise-free corners: exact up to rounding in solvePnP (1e-12 measured)
+    assert np.allclose(pose.R_cam_marker, R, atol=1e-8)
+    assert np.allclose(pose.t_cam_marker_m, t_cam, atol=1e-8)
+    assert pose.reprojection_error_px < 1e-6
+
+
+def test_pose_from_corners_uses_the_distortion_model():
+    R, t = np.diag([1.0, -1.0, -1.0]), np.array([0.9, 0.6, 3.0])
+    base = ArucoTracker(CAM)
+    corners, _ = cv2.projectPoints(base.object_points_m, cv2.Rodrigues(R)[0], t, CAM.K, DIST.coefficients)
+    pose = ArucoTracker(CAM, distortion=DIST).pose_from_corners(corners.reshape(4, 2))
+    assert np.allclose(pose.t_cam_marker_m, t, atol=1e-6)
+    naive = base.pose_from_corners(corners.reshape(4, 2))
+    assert np.linalg.norm(naive.t_cam_marker_m - t) > 0.05  # the paper's pinhole assumption
+
+
+def test_distortion_model_or_rectification_fixes_distorted_marker_pose(rendered_markers):
+    truths, frames = rendered_markers
+    naive = ArucoTracker(CAM, refinement="subpix")
+    modelled = ArucoTracker(CAM, refinement="subpix", distortion=DIST)
+    rectified = ArucoTracker(CAM, refinement="subpix", rectifier=Rectifier(CAM, DIST))
+    err = {"naive": [], "modelled": [], "rectified": []}
+    for truth, frame in zip(truths, frames["distorted"]):
+        for name, tracker in (("naive", naive), ("modelled", modelled), ("rectified", rectified)):
+            pose = tracker.detect(frame)[0]
+            err[name].append(np.linalg.norm(pose.t_cam_marker_m - truth[:3, 3]) / np.linalg.norm(truth[:3, 3]))
+    assert max(err["modelled"]) < 0.01 and max(err["rectified"]) < 0.01
+    # the paper's setting (pinhole assumed) is worse off axis, where barrel distortion bites
+    assert max(err["naive"]) > 2 * max(err["modelled"])
+
+
+def test_no_marker_gives_empty_dict(rendered_spheres):
+    _, frames = rendered_spheres
+    assert ArucoTracker(CAM).detect(frames["pinhole"][0]) == {}
+    assert ArucoTracker(CAM).detect(np.zeros((480, 640, 3), np.uint8)) == {}
