@@ -94,8 +94,8 @@ _BACKEND_HELP = (
 
 # The scene's fixed look (DESIGN.md, "background"): floats, matte materials.
 _SKY_RGB = (0.55, 0.72, 0.92)
-_AMBIENT_RGB = (0.35, 0.35, 0.35)
-_SUN_INTENSITY = 2.5
+_AMBIENT_RGB = (0.30, 0.30, 0.30)
+_SUN_INTENSITY = 0.75  # weight of the sun's cos θ term in the matte shader
 _GROUND_SIZE_M = 1000.0
 _GROUND_TILE_M = 1.0
 _GROUND_TEXTURE_SEED = 20240202
@@ -280,21 +280,86 @@ def _create_platform(width: int, height: int):
     return platform
 
 
+# Matte (Lambertian) fragment shader replacing pyrender's physically based one: the lab's
+# materials are all matte (metallic 0, roughness 1), and on a CPU rasteriser the PBR shader
+# costs about three times the frame time of this one. Colour = albedo × (ambient + Σ sun·cos θ),
+# sRGB-encoded exactly (IEC 61966-2-1), so linear-light averaging can invert it.
+_MATTE_FRAGMENT_SHADER = """#version 330 core
+struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
+struct Material {
+    vec4 base_color_factor;
+#ifdef HAS_BASE_COLOR_TEX
+    sampler2D base_color_texture;
+#endif
+};
+uniform Material material;
+uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
+uniform int n_directional_lights;
+uniform vec3 ambient_light;
+in vec3 frag_position;
+#ifdef NORMAL_LOC
+in vec3 frag_normal;
+#endif
+#ifdef TEXCOORD_0_LOC
+in vec2 uv_0;
+#endif
+out vec4 frag_color;
+
+vec3 decode_srgb(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), c));
+}
+vec3 encode_srgb(vec3 c) {
+    c = clamp(c, 0.0, 1.0);
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+void main() {
+    vec3 albedo = material.base_color_factor.rgb;
+#ifdef HAS_BASE_COLOR_TEX
+    albedo *= decode_srgb(texture(material.base_color_texture, uv_0).rgb);
+#endif
+#ifdef NORMAL_LOC
+    vec3 n = normalize(frag_normal);
+#else
+    vec3 n = vec3(0.0, 0.0, 1.0);
+#endif
+    vec3 irradiance = ambient_light;
+    for (int i = 0; i < n_directional_lights; i++) {
+        float cos_theta = max(dot(n, -directional_lights[i].direction), 0.0);
+        irradiance += directional_lights[i].intensity * directional_lights[i].color * cos_theta;
+    }
+    frag_color = vec4(encode_srgb(albedo * irradiance), 1.0);
+}
+"""
+
+
 def _make_renderer_class(pyrender):
-    """A pyrender Renderer that reads back colour only and caches programs per renderer."""
+    """A pyrender Renderer with the matte shader, one program cache and colour-only read-back."""
     from OpenGL import GL as gl
     from pyrender.shader_program import ShaderProgram, ShaderProgramCache
+
+    class _Program(ShaderProgram):
+        # Source either from pyrender's shader folder or, for the matte shader, from the string
+        # above; defines become real GLSL #define lines after the #version line.
+        def _load(self, shader_filename):
+            if os.path.basename(shader_filename) == "mesh.frag":
+                text = _MATTE_FRAGMENT_SHADER
+            else:
+                with open(shader_filename) as f:
+                    text = f.read()
+            version, _, body = text.partition("\n")
+            defines = "".join(f"#define {k} {v}\n" for k, v in self.defines.items())
+            return f"{version}\n{defines}{body}"
 
     class _ProgramCache(ShaderProgramCache):
         # One renderer owns one context, so the context handle is not needed in the key; under
         # OSMesa that handle never compares equal to itself and pyrender's cache never hit.
         def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
-            defines = defines or {}
+            defines = dict(defines or {})
             files = [f for f in (vertex_shader, fragment_shader, geometry_shader) if f is not None]
             key = (tuple(files), tuple(sorted(defines.items())))
             if key not in self._program_cache:
                 paths = [os.path.join(self.shader_dir, f) for f in files] + [None] * (3 - len(files))
-                self._program_cache[key] = ShaderProgram(
+                self._program_cache[key] = _Program(
                     vertex_shader=paths[0], fragment_shader=paths[1], geometry_shader=paths[2], defines=defines
                 )
             return self._program_cache[key]

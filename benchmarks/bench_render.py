@@ -1,0 +1,86 @@
+"""Rendering speed of :class:`gimbal_lab.scene.SceneRenderer` at 640 × 480.
+
+Prints ms/frame (median over ``--frames`` frames, after warm-up) for: pinhole render, render
+with lens distortion (larger canvas + remap), and an 8-sub-frame motion-blurred exposure, with
+and without distortion; then the ratios between them, all measured in this one run.
+
+Usage::
+
+    python benchmarks/bench_render.py [--frames 100] [--target sphere|aruco]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import numpy as np
+
+from gimbal_lab.camera import BrownConrady, Intrinsics
+from gimbal_lab.scene import SceneRenderer
+from gimbal_lab.trajectories import R_WORLD_MARKER, Trajectory
+
+T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]])
+FRAME_DT_S = 1.0 / 30.0
+
+
+def _pose_fn(trajectory: Trajectory):
+    def pose_fn(t_s):
+        T = np.eye(4)
+        T[:3, :3] = R_WORLD_MARKER
+        T[:3, 3] = trajectory.position(t_s)
+        return T_WORLD_CAM, T
+
+    return pose_fn
+
+
+def _median_ms(step, n_frames: int, n_warmup: int = 5) -> float:
+    for i in range(n_warmup):
+        step(i)
+    times = np.empty(n_frames)
+    for i in range(n_frames):
+        t0 = time.perf_counter()
+        step(i)
+        times[i] = time.perf_counter() - t0
+    return 1e3 * float(np.median(times))
+
+
+def main(argv=None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=100, help="frames per case (>= 100 for the report)")
+    parser.add_argument("--target", choices=("sphere", "aruco"), default="sphere")
+    args = parser.parse_args(argv)
+
+    camera = Intrinsics.default()
+    pose_fn = _pose_fn(Trajectory.circular())
+    exposure_s, n_sub = 0.5 * FRAME_DT_S, 8
+    results = {}
+    for label, lens in (("pinhole", None), ("distorted", BrownConrady.default())):
+        t0 = time.perf_counter()
+        renderer = SceneRenderer(camera, lens, target=args.target)
+        renderer.render(*pose_fn(0.0))  # shader compilation
+        setup_s = time.perf_counter() - t0
+        with renderer:
+            results[f"render ({label})"] = _median_ms(lambda i: renderer.render(*pose_fn(i * FRAME_DT_S)), args.frames)
+            results[f"{n_sub}-sub-frame exposure ({label})"] = _median_ms(
+                lambda i: renderer.render_exposure(pose_fn, i * FRAME_DT_S, exposure_s, n_sub), args.frames
+            )
+        canvas = renderer.canvas_intrinsics
+        print(f"{label}: canvas {canvas.width}x{canvas.height}, create + first frame {setup_s:.2f} s")
+
+    base = results["render (pinhole)"]
+    print(f"\n{args.target}, {camera.width}x{camera.height}, median of {args.frames} frames")
+    print(f"{'case':40s} {'ms/frame':>9s} {'x render':>9s} {'frames/s':>9s}")
+    for name, ms in results.items():
+        print(f"{name:40s} {ms:9.1f} {ms / base:9.2f} {1e3 / ms:9.1f}")
+    blur = results[f"{n_sub}-sub-frame exposure (pinhole)"]
+    print(f"\nexposure / ({n_sub} x render): {blur / (n_sub * base):.2f}")
+    print(f"distortion overhead: {results['render (distorted)'] / base - 1:+.0%}")
+    runs_s = 16 * 600 * base / 1e3
+    print(f"16 runs x 600 frames at the pinhole rate: {runs_s:.0f} s on one renderer ({math.ceil(runs_s / 2)} s on 2)")
+    return results
+
+
+if __name__ == "__main__":
+    main()
