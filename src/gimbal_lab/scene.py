@@ -368,7 +368,7 @@ def _make_renderer_class(pyrender):
         def __init__(self, width, height):
             super().__init__(width, height)
             self._program_cache = _ProgramCache()
-            self._rgb = np.empty((height, width, 3), dtype=np.uint8)
+            self._rgba = np.empty((height, width, 4), dtype=np.uint8)
 
         def _read_main_framebuffer(self, scene, flags):
             # Resolve the 4× multisampled colour buffer and read it into a reused array; the
@@ -386,10 +386,11 @@ def _make_renderer_class(pyrender):
             return self._read_rgb()
 
         def _read_rgb(self):
-            height, width = self._rgb.shape[:2]
+            # RGBA is the rasteriser's native layout: reading it is ~10x faster than RGB.
+            height, width = self._rgba.shape[:2]
             gl.glPixelStorei(gl.GL_PACK_ALIGNMENT, 1)
-            gl.glReadPixels(0, 0, width, height, gl.GL_RGB, gl.GL_UNSIGNED_BYTE, self._rgb)
-            return self._rgb[::-1]  # OpenGL rows run bottom-up; a view, copied by the caller
+            gl.glReadPixels(0, 0, width, height, gl.GL_RGBA, gl.GL_UNSIGNED_BYTE, self._rgba)
+            return cv2.flip(cv2.cvtColor(self._rgba, cv2.COLOR_RGBA2RGB), 0)  # GL rows run bottom-up
 
     return _ColourRenderer
 
@@ -618,7 +619,7 @@ class SceneRenderer:
 
     # ---------------------------------------------------------------------------------------
     def _render_canvas(self, T_world_cam: np.ndarray, T_world_target: np.ndarray) -> np.ndarray:
-        """The pinhole canvas image (a view into a reused buffer: copy before the next render)."""
+        """The pinhole canvas image, RGB uint8 (H_canvas, W_canvas, 3)."""
         T_world_cam = _check_pose("T_world_cam", T_world_cam)
         T_world_target = _check_pose("T_world_target", T_world_target)
         if self._renderer is None:
@@ -704,7 +705,7 @@ class SceneRenderer:
         acc = self._linear_sum
         for k in range(n):
             T_world_cam, T_world_target = pose_fn(t_start_s + (k + 0.5) * exposure_s / n)
-            linear = cv2.LUT(np.ascontiguousarray(self._render_canvas(T_world_cam, T_world_target)), _DECODE_LUT)
+            linear = cv2.LUT(self._render_canvas(T_world_cam, T_world_target), _DECODE_LUT)
             if k == 0:
                 acc[...] = linear
             else:
