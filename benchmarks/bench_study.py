@@ -1,0 +1,79 @@
+"""Cost of the closed-loop study.
+
+Prints, measured in one run:
+1. the cost of a closed-loop frame (render + detect + localise + control + 1 kHz inner loop)
+   against a render-only frame of the same poses, per target (target ratio ≤ 1.25);
+2. the wall time of the full 16-run grid (10 revolutions) on all cores (target ≤ 120 s on
+   2 cores); skip it with --no-grid.
+
+Usage: python benchmarks/bench_study.py [--frames 150] [--no-grid] [--jobs N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import numpy as np
+
+from gimbal_lab.experiments import paper_grid, run_grid
+from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.simulation import TrackingConfig, make_renderer, simulate
+from gimbal_lab.trajectories import target_pose
+
+
+def frame_costs(target: str, n_frames: int) -> tuple[float, float]:
+    """(closed-loop s/frame, render-only s/frame) for an active distorted circular run."""
+    config = TrackingConfig(target=target, distortion="default", mode="active", revolutions=n_frames / 60)
+    renderer = make_renderer(config)
+    try:
+        simulate(config.replace(revolutions=0.1), renderer=renderer)  # warm-up: shaders, caches
+        t0 = time.perf_counter()
+        result = simulate(config, renderer=renderer)
+        closed = (time.perf_counter() - t0) / len(result.frames)
+        kin = GimbalKinematics.default()
+        T_world_base = np.eye(4)
+        T_world_base[:3, 3] = (0.0, 0.0, 2.0)
+        f = result.frames
+        poses = [
+            (T_world_base @ kin.forward(q, check_limits=False), target_pose(config.path, t))
+            for q, t in zip(f[["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]].to_numpy(), f["t_s"])
+        ]
+        t0 = time.perf_counter()
+        for T_world_cam, T_world_target in poses:
+            renderer.render(T_world_cam, T_world_target)
+        render_only = (time.perf_counter() - t0) / len(poses)
+    finally:
+        renderer.close()
+    return closed, render_only
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=150)
+    parser.add_argument("--no-grid", dest="grid", action="store_false")
+    parser.add_argument("--jobs", type=int, default=None)
+    args = parser.parse_args()
+
+    print(f"closed-loop frame vs render-only frame ({args.frames} frames, 640x480, distorted, active)")
+    print(f"{'target':8s} {'closed-loop ms':>15s} {'render-only ms':>15s} {'ratio':>7s}")
+    for target in ("sphere", "aruco"):
+        closed, render = frame_costs(target, args.frames)
+        print(f"{target:8s} {1000 * closed:15.1f} {1000 * render:15.1f} {closed / render:7.2f}")
+
+    if args.grid:
+        jobs = args.jobs or os.cpu_count()
+        configs = paper_grid()
+        t0 = time.perf_counter()
+        run_grid(configs, jobs=jobs, progress=False)
+        wall = time.perf_counter() - t0
+        frames = sum(c.n_frames for c in configs)
+        print(f"\nfull grid: {len(configs)} runs, {frames} frames, {jobs} processes: {wall:.1f} s wall "
+              f"({1000 * wall / frames:.1f} ms per frame overall; target 120 s)")
+
+
+if __name__ == "__main__":
+    main()
