@@ -89,7 +89,10 @@ class TrackingConfig:
     sphere_method : {"circle", "ellipse"}
         Paper's enclosing-circle estimate, or the exact cone (ellipse) method.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
-        OpenCV corner refinement (the paper does not say; OpenCV's default is none).
+        OpenCV corner refinement. The paper does not say which it used; OpenCV's default is
+        none. The study uses sub-pixel refinement, the common choice for pose estimation: on
+        static rendered poses it halves the translation error of "none" at 3 m (0.48 % vs
+        0.79 % of distance, notebook 05). Notebook 08 also runs "none".
     outer_loop : {"predictive", "image"}
         Active mode's outer loop: "image" is the paper's PI law on the pixel error
         (:class:`gimbal_lab.control.ImageLoop`); "predictive" filters the line of sight and feeds
@@ -119,7 +122,7 @@ class TrackingConfig:
     inner_rate_hz: float = 1000.0
     latency_frames: int = 1
     sphere_method: str = "circle"
-    aruco_refinement: str = "none"
+    aruco_refinement: str = "subpix"
     outer_loop: str = "predictive"
     calibrated: bool = False
     exposure_s: float = 0.0
