@@ -6,6 +6,9 @@ marker pose, and analytic sphere silhouettes. One renderer per configuration (mo
 """
 
 import math
+import os
+import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -394,3 +397,22 @@ def test_bad_inputs_raise(sphere_pinhole):
         sphere_pinhole.render_exposure(lambda t: (T_HOME, np.eye(4)), 0.0, 0.1, 0)
     with pytest.raises(ValueError, match="exposure_s"):
         sphere_pinhole.render_exposure(lambda t: (T_HOME, np.eye(4)), 0.0, -0.1, 2)
+
+
+def test_missing_backend_error_names_the_packages():
+    """In a fresh process asked for OSMesa: it renders if libosmesa6 is installed, else the error
+    names the Debian packages of both backends (never a bare OpenGL traceback)."""
+    script = (
+        "from gimbal_lab.camera import Intrinsics\n"
+        "from gimbal_lab.scene import RenderBackendError, SceneRenderer\n"
+        "try:\n"
+        "    SceneRenderer(Intrinsics.from_fov(64, 48, 1.0)).close()\n"
+        "    print('rendered')\n"
+        "except RenderBackendError as exc:\n"
+        "    print('error:', exc)\n"
+    )
+    env = {**os.environ, "PYOPENGL_PLATFORM": "osmesa"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    line = out.stdout.strip()
+    assert line == "rendered" or ("libosmesa6" in line and "libegl1 libgl1-mesa-dri" in line), line
