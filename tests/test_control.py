@@ -371,3 +371,20 @@ def test_image_loop_rate_limit():
 def test_image_loop_rejects_bad_parameters(kwargs, name):
     with pytest.raises(ValueError, match=name):
         ImageLoop(Intrinsics.default(), **kwargs)
+
+
+def test_image_loop_centres_a_target_with_the_project_kinematics():
+    # the Jacobian convention of gimbal_lab.kinematics (camera frame, joint order yaw, roll, pitch)
+    from gimbal_lab.kinematics import GimbalKinematics
+
+    kin = GimbalKinematics.default()
+    K = Intrinsics.default()
+    T_home = kin.forward(np.zeros(3))
+    target = T_home[:3, :3] @ np.array([-0.5, -0.4, 3.0]) + T_home[:3, 3]  # left of and above the axis
+    sim = simulate_pointing(
+        ImageLoop(K, kp_per_s=4.0), lambda q: (kin.forward(q), kin.angular_jacobian(q, frame="camera")),
+        lambda t: target, 4.0,
+    )
+    assert sim.error_px[0, 0] < -80 and sim.error_px[0, 1] < -60  # ≈ fx·(−0.5, −0.4)/3
+    assert np.linalg.norm(sim.error_px[-1]) < 0.01
+    assert np.max(np.abs(sim.q_rad[:, 1])) < 1e-3  # roll stays level
