@@ -35,15 +35,19 @@ def _pose_fn(trajectory: Trajectory):
     return pose_fn
 
 
-def _median_ms(step, n_frames: int, n_warmup: int = 5) -> float:
+def _interleaved_medians_ms(steps: dict, n_frames: int, n_warmup: int = 3) -> dict[str, float]:
+    """Median ms per call of each step, the steps taking turns so that load changes on a shared
+    machine affect every case alike (their ratios stay meaningful)."""
     for i in range(n_warmup):
-        step(i)
-    times = np.empty(n_frames)
+        for step in steps.values():
+            step(i)
+    times = {name: np.empty(n_frames) for name in steps}
     for i in range(n_frames):
-        t0 = time.perf_counter()
-        step(i)
-        times[i] = time.perf_counter() - t0
-    return 1e3 * float(np.median(times))
+        for name, step in steps.items():
+            t0 = time.perf_counter()
+            step(i)
+            times[name][i] = time.perf_counter() - t0
+    return {name: 1e3 * float(np.median(t)) for name, t in times.items()}
 
 
 def main(argv=None) -> dict[str, float]:
@@ -55,19 +59,23 @@ def main(argv=None) -> dict[str, float]:
     camera = Intrinsics.default()
     pose_fn = _pose_fn(Trajectory.circular())
     exposure_s, n_sub = 0.5 * FRAME_DT_S, 8
-    results = {}
+    renderers = {}
     for label, lens in (("pinhole", None), ("distorted", BrownConrady.default())):
         t0 = time.perf_counter()
-        renderer = SceneRenderer(camera, lens, target=args.target)
-        renderer.render(*pose_fn(0.0))  # shader compilation
-        setup_s = time.perf_counter() - t0
-        with renderer:
-            results[f"render ({label})"] = _median_ms(lambda i: renderer.render(*pose_fn(i * FRAME_DT_S)), args.frames)
-            results[f"{n_sub}-sub-frame exposure ({label})"] = _median_ms(
-                lambda i: renderer.render_exposure(pose_fn, i * FRAME_DT_S, exposure_s, n_sub), args.frames
-            )
-        canvas = renderer.canvas_intrinsics
-        print(f"{label}: canvas {canvas.width}x{canvas.height}, create + first frame {setup_s:.2f} s")
+        renderers[label] = SceneRenderer(camera, lens, target=args.target)
+        renderers[label].render(*pose_fn(0.0))  # shader compilation
+        canvas = renderers[label].canvas_intrinsics
+        print(f"{label}: canvas {canvas.width}x{canvas.height}, create + first frame {time.perf_counter() - t0:.2f} s")
+    steps = {}
+    for label, r in renderers.items():
+        steps[f"render ({label})"] = lambda i, r=r: r.render(*pose_fn(i * FRAME_DT_S))
+    for label, r in renderers.items():
+        steps[f"{n_sub}-sub-frame exposure ({label})"] = lambda i, r=r: r.render_exposure(
+            pose_fn, i * FRAME_DT_S, exposure_s, n_sub
+        )
+    results = _interleaved_medians_ms(steps, args.frames)
+    for r in renderers.values():
+        r.close()
 
     base = results["render (pinhole)"]
     print(f"\n{args.target}, {camera.width}x{camera.height}, median of {args.frames} frames")

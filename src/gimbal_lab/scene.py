@@ -370,6 +370,11 @@ def _make_renderer_class(pyrender):
             self._program_cache = _ProgramCache()
             self._rgba = np.empty((height, width, 4), dtype=np.uint8)
 
+        def __del__(self):
+            # pyrender's finaliser frees GL objects, possibly with no context current (at
+            # interpreter exit); SceneRenderer.close frees them explicitly instead.
+            pass
+
         def _read_main_framebuffer(self, scene, flags):
             # Resolve the 4× multisampled colour buffer and read it into a reused array; the
             # stock method also reads and linearises depth, which the lab never uses.
