@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import ctypes.util
 import os
-import sys
 
 import cv2
 import numpy as np
