@@ -29,6 +29,7 @@ def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
     ax.set_xlim(0, 4)
     ax.set_ylim(-2, 2)
     ax.set_zlim(0, 4)
+    ax.set_box_aspect((1, 1, 1))  # equal metres on every axis
     ax.legend(loc="upper left")
     ax.set_title("Target trajectories (world frame)")
     return ax
