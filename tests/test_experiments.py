@@ -80,6 +80,14 @@ def test_equivalence_margin_boundary():
     assert all(verdicts(check_claims(make_summary(err, inside)), "A2"))
 
 
+def test_one_target_checks_its_own_claims():
+    df = make_summary(paper_like_errors())
+    sphere = check_claims(df[df.target == "sphere"])
+    aruco = check_claims(df[df.target == "aruco"])
+    assert set(sphere["id"]) == {"S1", "S2", "S3", "S4", "S5"}
+    assert set(aruco["id"]) == {"A2", "A3", "A4", "A5", "A6"}  # A1 compares with the sphere runs
+
+
 def test_missing_run_is_a_clear_error():
     df = make_summary(paper_like_errors())
     with pytest.raises(ValueError, match="exactly one run"):
