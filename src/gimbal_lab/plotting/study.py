@@ -92,13 +92,18 @@ def plot_xyz(result, revolution: int = 1, fig=None):
     return fig
 
 
-def plot_pixel_offset(results, ax=None):
-    """Distance of the detected target from the image centre over time, one line per run."""
+def plot_pixel_offset(results, labels=None, ax=None):
+    """Distance of the detected target from the image centre over time, one line per run.
+
+    ``labels`` (one per run) default to the runs' labels.
+    """
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
-    for r in results:
-        f = r.frames
-        ax.plot(f["t_s"], f["offset_px"], lw=1, color=_MODE_COLOURS[r.config.mode], label=r.config.label)
+    labels = [r.config.label for r in results] if labels is None else list(labels)
+    if len(labels) != len(results):
+        raise ValueError(f"labels must have one entry per run ({len(results)}), got {len(labels)}")
+    for r, label in zip(results, labels):
+        ax.plot(r.frames["t_s"], r.frames["offset_px"], lw=1, label=label)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("offset from image centre [px]")
     ax.grid(alpha=0.3)
