@@ -367,14 +367,14 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         t_s = k / config.fps
         q = np.array([a.angle_rad for a in axes])
         qd = np.array([a.rate_rad_s for a in axes])
-        T_world_cam = T_world_base @ kin.forward(q)
+        T_world_cam = T_world_base @ kin.forward(q, check_limits=False)
         T_world_target = target_pose(path, t_s)
 
         t0 = time.perf_counter()
         if config.exposure_s > 0 and config.n_subframes > 1:
             # Within one exposure the gimbal's motion is interpolated at its current rate.
             def pose_fn(t, q=q, qd=qd, t_k=t_s):
-                return T_world_base @ kin.forward(q + qd * (t - t_k)), target_pose(path, t)
+                return T_world_base @ kin.forward(q + qd * (t - t_k), check_limits=False), target_pose(path, t)
 
             image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
         else:
@@ -413,7 +413,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         if len(pending) > config.latency_frames:
             t_capture, measured, q_capture = pending.popleft()
             if image_loop is not None:
-                J_cam = kin.angular_jacobian(q, frame="camera")
+                J_cam = kin.angular_jacobian(q, frame="camera", check_limits=False)
                 rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q), float)
             elif predictive is not None:
                 predictive.observe(t_capture, measured, q_capture)

@@ -179,7 +179,7 @@ class PredictiveLoop:
         """Fuse a detection made on the frame taken at ``t_capture_s`` with joints ``q_capture_rad``."""
         if uv_px is None:
             return
-        T = self.kinematics.forward(np.asarray(q_capture_rad, float))
+        T = self.kinematics.forward(np.asarray(q_capture_rad, float), check_limits=False)
         ray_cam = backproject(np.asarray(uv_px, float).reshape(1, 2), self.intrinsics, self.distortion)[0]
         ray_base = T[:3, :3] @ ray_cam
         # the point on the ray at the nominal range, seen from the centre of rotation
