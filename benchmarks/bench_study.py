@@ -17,11 +17,10 @@ import time
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-import numpy as np
 
 from gimbal_lab.experiments import paper_grid, run_grid
 from gimbal_lab.kinematics import GimbalKinematics
-from gimbal_lab.simulation import TrackingConfig, make_renderer, simulate
+from gimbal_lab.simulation import TrackingConfig, make_renderer, simulate, world_T_base
 from gimbal_lab.trajectories import target_pose
 
 
@@ -35,8 +34,7 @@ def frame_costs(target: str, n_frames: int) -> tuple[float, float]:
         result = simulate(config, renderer=renderer)
         closed = (time.perf_counter() - t0) / len(result.frames)
         kin = GimbalKinematics.default()
-        T_world_base = np.eye(4)
-        T_world_base[:3, 3] = (0.0, 0.0, 2.0)
+        T_world_base = world_T_base(kin)
         f = result.frames
         poses = [
             (T_world_base @ kin.forward(q, check_limits=False), target_pose(config.path, t))

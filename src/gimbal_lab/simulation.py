@@ -291,6 +291,17 @@ class _Estimator:
         return np.asarray(pose.center_px, float), np.asarray(pose.t_cam_marker_m, float), None
 
 
+#: Where the UAV body sits in the world during the study (static, level, facing +x).
+BODY_POSITION_M = (0.0, 0.0, 2.0)
+
+
+def world_T_base(kinematics) -> np.ndarray:
+    """4 × 4 ``T_world_base`` of the study: the body at :data:`BODY_POSITION_M`, axes = world's."""
+    T_world_body = np.eye(4)
+    T_world_body[:3, 3] = BODY_POSITION_M
+    return T_world_body @ kinematics.T_body_base
+
+
 def make_renderer(config: TrackingConfig):
     """The scene renderer a config needs (one per target and lens; reusable across runs)."""
     from .scene import SceneRenderer
@@ -333,9 +344,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     path = config.path
     estimate = _Estimator(config)
     kin = GimbalKinematics.default()
-    T_world_body = np.eye(4)
-    T_world_body[:3, 3] = (0.0, 0.0, 2.0)
-    T_world_base = T_world_body @ kin.T_body_base
+    T_world_base = world_T_base(kin)
 
     dt_s = 1.0 / config.inner_rate_hz
     plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]

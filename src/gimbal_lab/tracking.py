@@ -161,19 +161,7 @@ class PredictiveLoop:
         self.range_m = float(range_m)
         self.distortion = distortion
         self.filter = filter if filter is not None else LineOfSightFilter()
-        self._pivot = self._rotation_centre()
-
-    def _rotation_centre(self) -> np.ndarray:
-        """Point of the base frame that stays fixed when the joints move (least squares)."""
-        rng = np.random.default_rng(0)
-        A, b = [], []
-        for q in rng.uniform(-0.3, 0.3, (6, 3)):
-            T = self.kinematics.forward(q)
-            # c = R p_cam + t for the fixed point p_cam (in the camera frame): unknowns p_cam, pivot
-            A.append(np.hstack((T[:3, :3], -np.eye(3))))
-            b.append(-T[:3, 3])
-        sol = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)[0]
-        return sol[3:]
+        self._pivot = np.asarray(kinematics.centre_base, float)  # the joints' common centre of rotation
 
     def observe(self, t_capture_s: float, uv_px, q_capture_rad) -> None:
         """Fuse a detection made on the frame taken at ``t_capture_s`` with joints ``q_capture_rad``."""
