@@ -529,3 +529,21 @@ def test_no_marker_gives_empty_dict(rendered_spheres):
     _, frames = rendered_spheres
     assert ArucoTracker(CAM).detect(frames["pinhole"][0]) == {}
     assert ArucoTracker(CAM).detect(np.zeros((480, 640, 3), np.uint8)) == {}
+
+
+def test_aruco_pose_of_an_exactly_fronto_parallel_square():
+    """Corners of an axis-aligned square (a study frame: ArUco, diagonal, active, no refinement,
+    frame 327) on which OpenCV's IPPE solvers return NaN; the tracker still gives the pose."""
+    corners = np.array([[295.0, 217.0], [344.0, 217.0], [344.0, 267.0], [295.0, 267.0]])
+    tracker = ArucoTracker(CAM)
+    ok, rvec, tvec = cv2.solvePnP(tracker.object_points_m, corners[::-1].copy(), CAM.K, None,
+                                  flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    assert not np.all(np.isfinite(tvec))  # the OpenCV behaviour worked around
+    pose = tracker.pose_from_corners(corners)
+    # a 49 x 50 px quad of a 0.30 m marker seen square-on: range ~ fx * L / 49.5 px; 1 % covers the
+    # 1 px disagreement of the two sides (the reprojection residual, 0.35 px, absorbs it)
+    side_px = 49.5
+    range_m = CAM.fx * 0.30 / side_px
+    assert pose.t_cam_marker_m[2] == pytest.approx(range_m, rel=0.01)
+    assert np.allclose(pose.R_cam_marker[:, 2], [0, 0, -1], atol=0.02)  # normal towards the camera
+    assert pose.reprojection_error_px < 0.5

@@ -894,9 +894,13 @@ class ArucoTracker:
         image_points = np.asarray(corners_px, dtype=float).reshape(4, 2)
         if not np.all(np.isfinite(image_points)):
             return None
-        ok, rvec_f, tvec = cv2.solvePnP(
-            self.object_points_m, image_points[::-1].copy(), self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-        )
+        flipped = image_points[::-1].copy()
+        ok, rvec_f, tvec = cv2.solvePnP(self.object_points_m, flipped, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        if not ok or not (np.all(np.isfinite(rvec_f)) and np.all(np.isfinite(tvec))):
+            # OpenCV 5's IPPE returns NaN for an exactly fronto-parallel square (integer corners
+            # of an axis-aligned marker, seen in the study); Levenberg–Marquardt from a
+            # homography start solves the same problem there.
+            ok, rvec_f, tvec = cv2.solvePnP(self.object_points_m, flipped, self._K, self._dist, flags=cv2.SOLVEPNP_ITERATIVE)
         if not ok or not (np.all(np.isfinite(rvec_f)) and np.all(np.isfinite(tvec))):
             return None
         R_cam_marker = cv2.Rodrigues(rvec_f)[0] @ _FLIP_YZ
