@@ -8,12 +8,16 @@ Modules
 -------
 camera        intrinsics, projection, Brown-Conrady distortion
 kinematics    DH transforms and the 3-DoF yaw-roll-pitch gimbal
-scene         headless pyrender scene synthesis
+scene         headless pyrender scene synthesis, sensor noise
 detection     sphere (circle and exact ellipse) and ArUco localisation
+evaluation    static accuracy sweeps of the detectors
 control       axis plant, PID, Ziegler-Nichols, inner and outer loops
+tracking      line-of-sight filter and the predictive outer loop
 trajectories  the study's target motions
 simulation    the closed tracking loop
-experiments   the paper's grid, parallel runs, summaries and claim checks
+runner        executors (local spawn pool, Dask), the results store, progress
+stats         replicate statistics and three-way verdicts
+studies       one module per study (paper: the 16-cell grid and its claims)
 plotting      every figure
 """
 

@@ -66,6 +66,9 @@ __all__ = [
     "compare_tunings",
     "PointingSimulation",
     "simulate_pointing",
+    "outer_loop_plant",
+    "outer_loop_delay_s",
+    "outer_loop_gains",
     "AXES",
 ]
 
@@ -824,6 +827,67 @@ class RateLoop:
         self.pid.reset()
 
 
+def outer_loop_delay_s(fps: float, latency_frames: int) -> float:
+    """Delay of the outer (image) loop, s: L = (latency_frames + ½) / fps.
+
+    A detection made on frame k reaches the outer loop ``latency_frames`` frames later, and the
+    rate reference it produces is held for one frame (a zero-order hold, worth half a frame).
+    """
+    fps = _check_real("fps", fps, low=0.0, low_open=True)
+    if isinstance(latency_frames, bool) or not float(latency_frames).is_integer() or latency_frames < 0:
+        raise ValueError(f"latency_frames must be an integer >= 0, got {latency_frames!r}")
+    return (int(latency_frames) + 0.5) / fps
+
+
+def outer_loop_plant(fps: float = 30.0, latency_frames: int = 1, pade_order: int = 6):
+    """The plant the outer loop sees: camera rate reference → angle of the target's line of sight.
+
+    With the inner rate loops closed (their bandwidth, tens of Hz, is far above the outer loop's),
+    the camera turns at the commanded rate, so the angle is the integral of the reference; the
+    image reaches the loop after the vision delay L (:func:`outer_loop_delay_s`):
+
+        P(s) = e^{−sL} / s.
+
+    Parameters
+    ----------
+    fps : float
+        Camera frame rate, 1/s.
+    latency_frames : int
+        Frames between taking an image and its detection reaching the loop, >= 0.
+    pade_order : int
+        Order of the Padé approximant of the delay.
+
+    Returns
+    -------
+    control.TransferFunction
+
+    Notes
+    -----
+    Paper §3.2.3, Fig. 5 (outer loop). The phase of e^{−sL}/s reaches −180° at ω = π/(2L), where
+    |P| = 2L/π: Ku = π/(2L) and Tu = 4L (a hand derivation the tests check).
+    """
+    L = outer_loop_delay_s(fps, latency_frames)
+    integrator = ct.tf([1.0], [1.0, 0.0])
+    return integrator * ct.tf(*ct.pade(L, int(pade_order)))
+
+
+def outer_loop_gains(fps: float = 30.0, latency_frames: int = 1, kind: str = "PI") -> PIDGains:
+    """Ziegler–Nichols gains of the outer image loop from its own plant (:func:`outer_loop_plant`).
+
+    Ku and Tu come from :func:`ultimate_gain`; the rule is the ultimate-gain table of
+    :func:`ziegler_nichols` (PI by default: kp = 0.45 Ku, Ti = Tu/1.2). Nothing about the target's
+    motion enters. kp is in rad/s of camera rate per rad of angular error (1/s), ki in 1/s².
+
+    Examples
+    --------
+    >>> g = outer_loop_gains(30.0, 1)       # L = 1.5 frames = 50 ms: Ku = 10π /s, Tu = 0.2 s
+    >>> round(g.kp, 3), round(g.ki, 2)
+    (14.137, 84.82)
+    """
+    Ku, Tu = ultimate_gain(outer_loop_plant(fps, latency_frames))
+    return ziegler_nichols(Ku, Tu, kind)
+
+
 class ImageLoop:
     """Outer loop: target pixel → joint-rate references (paper §3.2.3, Fig. 5).
 
@@ -899,6 +963,15 @@ class ImageLoop:
         self.home_gain_per_s = _check_real("home_gain_per_s", home_gain_per_s, low=0.0, low_open=True)
         self.distortion = distortion
         self.reset()
+
+    @classmethod
+    def ziegler_nichols(cls, intrinsics: Intrinsics, fps: float = 30.0, latency_frames: int = 1, **kwargs) -> "ImageLoop":
+        """The paper's outer loop with Ziegler–Nichols PI gains from :func:`outer_loop_gains`.
+
+        ``kwargs`` set the other parameters (limits, lost-target behaviour, lens).
+        """
+        gains = outer_loop_gains(fps, latency_frames, "PI")
+        return cls(intrinsics, kp_per_s=gains.kp, ki_per_s2=gains.ki, **kwargs)
 
     def reset(self) -> None:
         """Clear the integral and the lost-target timer."""
@@ -1191,6 +1264,7 @@ def simulate_pointing(
     fps: float = 30.0,
     q0_rad=(0.0, 0.0, 0.0),
     visible: Callable | None = None,
+    latency_frames: int = 0,
 ) -> PointingSimulation:
     """Outer loop alone: the joints follow the rate references exactly (ideal inner loop).
 
@@ -1212,6 +1286,8 @@ def simulate_pointing(
         Initial joint angles, rad.
     visible : callable t -> bool, optional
         False makes the frame a "no detection" (e.g. an occlusion).
+    latency_frames : int
+        Frames between taking an image and its pixel reaching the loop, >= 0 (the study: 1).
     """
     from .camera import project
 
@@ -1222,6 +1298,8 @@ def simulate_pointing(
     K = image_loop.intrinsics
     q = np.asarray(q0_rad, dtype=float).copy()
     t = np.arange(n) * dt
+    outer_loop_delay_s(fps, latency_frames)  # validates latency_frames
+    pending = []
     uvs, qs, qds = np.full((n, 2), np.nan), np.empty((n, 3)), np.empty((n, 3))
     for k in range(n):
         T_world_cam, J_cam = camera_pose(q)
@@ -1234,7 +1312,9 @@ def simulate_pointing(
         if inside:
             uvs[k] = uv
         qs[k] = q
-        qdot = image_loop.update(uv if inside else None, dt, J_cam, q)
+        pending.append(uv if inside else None)
+        seen = pending.pop(0) if len(pending) > latency_frames else None
+        qdot = image_loop.update(seen, dt, J_cam, q)
         qds[k] = qdot
         q = q + dt * qdot
     error = uvs - np.array([K.cx, K.cy])

@@ -82,6 +82,7 @@ __all__ = [
     "aruco_marker_image",
     "srgb_to_linear",
     "linear_to_srgb",
+    "add_sensor_noise",
     "ARUCO_DICTIONARY",
 ]
 
@@ -744,3 +745,58 @@ class SceneRenderer:
             self.close()
         except Exception:
             pass
+
+
+# ----------------------------------------------------------------------------------------------
+# sensor noise
+# ----------------------------------------------------------------------------------------------
+_NOISE_LEVELS = 1 << 16
+_NOISE_TABLES: dict = {}
+
+
+def _rounded_gaussian_table(std: float) -> np.ndarray:
+    """Inverse CDF of N(0, std²) at the 2¹⁶ mid-quantiles, rounded to integers (int16)."""
+    table = _NOISE_TABLES.get(std)
+    if table is None:
+        from scipy.stats import norm
+
+        quantiles = (np.arange(_NOISE_LEVELS) + 0.5) / _NOISE_LEVELS
+        table = np.rint(norm.ppf(quantiles) * std).astype(np.int16)
+        _NOISE_TABLES[std] = table
+    return table
+
+
+def add_sensor_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """The 8-bit image a sensor with Gaussian read noise of ``std`` grey levels would record.
+
+    Every pixel and channel independently becomes clip(round(value + n), 0, 255) with
+    n ~ N(0, std²). For integer ``value`` that is value + round(n), so the rounded Gaussian is drawn
+    directly: 16 random bits per sample index a table of its inverse CDF at the 2¹⁶ mid-quantiles
+    (tails beyond ±4.2 σ, probability 3·10⁻⁵, are cut). It costs about a tenth of drawing
+    floating-point normals for a 640 × 480 RGB frame, and is exact in distribution otherwise.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, any shape
+    std : float
+        Noise standard deviation in grey levels, >= 0 (0 returns the image unchanged).
+    rng : numpy.random.Generator
+        The source of randomness (same generator state → same noise).
+
+    Returns
+    -------
+    ndarray of uint8, same shape.
+    """
+    if isinstance(std, bool) or not np.isfinite(std) or std < 0:
+        raise ValueError(f"std must be a finite number >= 0 grey levels, got {std!r}")
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise TypeError(f"image must be uint8, got {image.dtype}")
+    if std == 0:
+        return image
+    table = _rounded_gaussian_table(float(std))
+    draws = np.frombuffer(rng.bytes(2 * image.size), dtype=np.uint16).reshape(image.shape)
+    noisy = np.take(table, draws)
+    noisy += image
+    np.clip(noisy, 0, 255, out=noisy)
+    return noisy.astype(np.uint8)

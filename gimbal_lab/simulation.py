@@ -1,20 +1,27 @@
 """The closed tracking loop of the study (paper §4.1, Fig. 5).
 
-trajectory → render (with lens distortion) → detect → localise → (active) outer image loop →
-inner rate loops → gimbal axes → forward kinematics → next camera pose.
+trajectory → render (with lens distortion and sensor noise) → detect → localise → (active) outer
+image loop → inner rate loops → gimbal axes → forward kinematics → next camera pose.
 
 The inner loop and the axis dynamics run at ``inner_rate_hz`` (1 kHz by default); the camera
 takes a frame every 1/fps seconds. A detection made on frame k reaches the outer loop
 ``latency_frames`` frames later. In passive mode the gimbal is stabilised at its home pose (rate
-references zero); in active mode the outer loop turns the target's pixel offset from the image
-centre into joint-rate references.
+references zero); in active mode an outer loop turns the target's image into joint-rate
+references: the paper's PI law on the pixel error with Ziegler–Nichols gains
+(:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`, the default), or the predictive
+line-of-sight loop (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension).
 
-Every frame's estimate is mapped to the world through the camera extrinsics at the instant the
-frame was taken, and compared with the truth: the metric is |d_est − d_true|, with d the distance
-from the camera's optical centre to the target's centre (paper §4.1).
+A frame is exposed over [t, t + exposure_s]; its truth is taken at the **mid-exposure instant**
+t + exposure_s/2 (the target's position and the camera's pose then), and the estimate is mapped
+to the world through the camera pose at that same instant. The metric is |d_est − d_true|, with d
+the distance from the camera's optical centre to the target's centre (paper §4.1).
+
+Replicates: a config's ``start_phase_s`` shifts the target's motion in time and its ``seed``
+draws the sensor noise, so replicates of one cell differ only by those draws
+(:func:`gimbal_lab.studies.paper.grid` draws both from the replicate's seed).
 
 Rendering needs an OpenGL context: a process that ran :func:`simulate` must not fork
-(see :mod:`gimbal_lab.scene`); :mod:`gimbal_lab.experiments` runs configs on spawned workers.
+(see :mod:`gimbal_lab.scene`); :mod:`gimbal_lab.runner` runs configs on spawned workers.
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ import json
 import math
 import time
 from collections import deque
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -32,38 +39,50 @@ import pandas as pd
 from .camera import BrownConrady, Intrinsics, project
 from .trajectories import Trajectory, target_pose
 
-__all__ = ["TrackingConfig", "TrackingResult", "simulate"]
+__all__ = ["TrackingConfig", "TrackingResult", "simulate", "FRAME_COLUMNS", "world_T_base", "make_renderer"]
 
 _TARGETS = ("sphere", "aruco")
 _MODES = ("passive", "active")
 _DISTORTIONS = ("none", "default")
 _SPHERE_METHODS = ("circle", "ellipse")
 _REFINEMENTS = ("none", "subpix", "contour", "apriltag")
+_OUTER_LOOPS = ("paper", "predictive")
+
+#: Upper bounds that keep a config's sizes sane (a run, not a typo, decides the cost).
+_MAX_IMAGE_PX = 8192
+_MAX_INNER_RATE_HZ = 100_000.0
+_MAX_FRAMES = 1_000_000
+_MAX_SUBFRAMES = 1024
 
 
-def _positive(name, value, integer=False):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
+def _number(name, value, *, low=None, high=None, low_open=False, integer=False):
+    """A real number from ``value`` (never a bool, a string or NaN/inf), or a clear error."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    lo = "" if low is None else (f"> {low:g}" if low_open else f">= {low:g}")
+    hi = "" if high is None else f"<= {high:g}"
+    allowed = " and ".join(t for t in (lo, hi) if t) or "finite"
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite ({allowed}), got {value!r}")
+    if (low is not None and (v <= low if low_open else v < low)) or (high is not None and v > high):
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
     if integer:
         if not v.is_integer():
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            raise ValueError(f"{name} must be an integer ({allowed}), got {value!r}")
         return int(v)
     return v
 
 
 def _choice(name, value, allowed):
-    if value not in allowed:
+    if not isinstance(value, str) or value not in allowed:
         raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
     return value
 
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """One run of the study. Defaults are DESIGN.md's fixed parameters.
+    """One run of the study. Defaults are the study's fixed parameters (docs/design.md).
 
     Parameters
     ----------
@@ -73,9 +92,12 @@ class TrackingConfig:
     trajectory : {"circular", "diagonal"}
     mode : {"passive", "active"}
     revolutions : float
-        Number of periods simulated (> 0; the paper: 10).
+        Number of periods simulated (> 0). The study: 2, the first being acquisition.
     period_s : float
         Period of the trajectory (paper: 2 s).
+    start_phase_s : float
+        Time offset of the target's motion, s, in [0, period_s): the target starts where the
+        trajectory is at t = start_phase_s. Replicates draw it from their seed.
     fps : float
         Camera frame rate (30).
     width, height : int
@@ -83,9 +105,10 @@ class TrackingConfig:
     hfov_rad : float
         Horizontal field of view (60°).
     inner_rate_hz : float
-        Rate of the inner loop and of the axis integration (1 kHz).
+        Rate of the inner loop and of the axis integration (1 kHz), >= fps.
     latency_frames : int
-        Frames between taking an image and its detection reaching the outer loop (≥ 0; 1).
+        Frames between taking an image and its detection reaching the outer loop (>= 0; 1),
+        fewer than the run's frames.
     sphere_method : {"circle", "ellipse"}
         Paper's enclosing-circle estimate, or the exact cone (ellipse) method.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
@@ -93,28 +116,30 @@ class TrackingConfig:
         none. The study uses sub-pixel refinement, the common choice for pose estimation: on
         static rendered poses it halves the translation error of "none" at 3 m (0.48 % vs
         0.79 % of distance, notebook 05). Notebook 08 also runs "none".
-    outer_loop : {"predictive", "image"}
-        Active mode's outer loop: "image" is the paper's PI law on the pixel error
-        (:class:`gimbal_lab.control.ImageLoop`); "predictive" filters the line of sight and feeds
-        its rate forward (:class:`gimbal_lab.tracking.PredictiveLoop`), which removes the lag
-        that one frame of latency imposes on pure feedback.
+    outer_loop : {"paper", "predictive"}
+        Active mode's outer loop: "paper" is the paper's PI law on the pixel error with
+        Ziegler–Nichols gains from the outer loop's own plant
+        (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`); "predictive" filters the line of
+        sight with priors from a stated target class and feeds its rate forward
+        (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension).
     calibrated : bool
         True: the estimators know the lens model (undistort contours / pass coefficients to
         solvePnP). False (paper): they assume a pinhole camera whatever the lens.
     exposure_s, n_subframes : float, int
         Motion blur: frames integrate ``n_subframes`` renders over ``exposure_s`` (0 s, 1: sharp).
     noise_std : float
-        Sensor noise standard deviation in 8-bit grey levels (0: none).
+        Sensor noise standard deviation in 8-bit grey levels (the study: 2).
     seed : int
-        Seed of every random choice in the run (sensor noise).
+        Seed of the run's sensor noise, >= 0.
     """
 
     target: str = "sphere"
     distortion: object = "none"
     trajectory: str = "circular"
     mode: str = "passive"
-    revolutions: float = 10.0
+    revolutions: float = 2.0
     period_s: float = 2.0
+    start_phase_s: float = 0.0
     fps: float = 30.0
     width: int = 640
     height: int = 480
@@ -123,11 +148,11 @@ class TrackingConfig:
     latency_frames: int = 1
     sphere_method: str = "circle"
     aruco_refinement: str = "subpix"
-    outer_loop: str = "predictive"
+    outer_loop: str = "paper"
     calibrated: bool = False
     exposure_s: float = 0.0
     n_subframes: int = 1
-    noise_std: float = 0.0
+    noise_std: float = 2.0
     seed: int = 0
 
     def __post_init__(self):
@@ -136,31 +161,33 @@ class TrackingConfig:
         _choice("mode", self.mode, _MODES)
         _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
         _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
-        _choice("outer_loop", self.outer_loop, ("predictive", "image"))
+        _choice("outer_loop", self.outer_loop, _OUTER_LOOPS)
         if not isinstance(self.distortion, BrownConrady):
             _choice("distortion", self.distortion, _DISTORTIONS)
-        for name in ("revolutions", "period_s", "fps", "inner_rate_hz", "hfov_rad"):
-            object.__setattr__(self, name, _positive(name, getattr(self, name)))
-        if self.hfov_rad >= math.pi:
-            raise ValueError(f"hfov_rad must be < pi, got {self.hfov_rad}")
-        for name in ("width", "height", "n_subframes"):
-            object.__setattr__(self, name, _positive(name, getattr(self, name), integer=True))
-        if self.inner_rate_hz < self.fps:
-            raise ValueError(f"inner_rate_hz ({self.inner_rate_hz}) must be >= fps ({self.fps})")
-        latency = float(self.latency_frames)
-        if not (latency.is_integer() and latency >= 0):
-            raise ValueError(f"latency_frames must be an integer >= 0, got {self.latency_frames!r}")
-        object.__setattr__(self, "latency_frames", int(latency))
-        for name in ("exposure_s", "noise_std"):
-            v = float(getattr(self, name))
-            if not math.isfinite(v) or v < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, v)
-        if not isinstance(self.calibrated, bool):
+        set_ = lambda name, value: object.__setattr__(self, name, value)
+        for name in ("revolutions", "period_s", "fps"):
+            set_(name, _number(name, getattr(self, name), low=0.0, low_open=True))
+        set_("hfov_rad", _number("hfov_rad", self.hfov_rad, low=0.0, high=math.radians(179.0), low_open=True))
+        set_("inner_rate_hz", _number("inner_rate_hz", self.inner_rate_hz, low=self.fps, high=_MAX_INNER_RATE_HZ))
+        set_("start_phase_s", _number("start_phase_s", self.start_phase_s, low=0.0))
+        if self.start_phase_s >= self.period_s:
+            raise ValueError(f"start_phase_s must be in [0, period_s = {self.period_s:g}), got {self.start_phase_s!r}")
+        for name in ("width", "height"):
+            set_(name, _number(name, getattr(self, name), low=16, high=_MAX_IMAGE_PX, integer=True))
+        set_("n_subframes", _number("n_subframes", self.n_subframes, low=1, high=_MAX_SUBFRAMES, integer=True))
+        n_frames = self.revolutions * self.period_s * self.fps
+        if n_frames > _MAX_FRAMES:
+            raise ValueError(f"revolutions × period_s × fps must be <= {_MAX_FRAMES} frames, got {n_frames:g}")
+        if self.n_frames < 1:
+            raise ValueError(f"the run must hold at least one frame: revolutions × period_s × fps = {n_frames:g}")
+        set_("latency_frames", _number("latency_frames", self.latency_frames, low=0, high=max(self.n_frames - 1, 0),
+                                       integer=True))
+        set_("exposure_s", _number("exposure_s", self.exposure_s, low=0.0, high=1.0 / self.fps))
+        set_("noise_std", _number("noise_std", self.noise_std, low=0.0, high=128.0))
+        if not isinstance(self.calibrated, (bool, np.bool_)):
             raise TypeError(f"calibrated must be a bool, got {self.calibrated!r}")
-        if isinstance(self.seed, bool) or not float(self.seed).is_integer():
-            raise ValueError(f"seed must be an integer, got {self.seed!r}")
-        object.__setattr__(self, "seed", int(self.seed))
+        set_("calibrated", bool(self.calibrated))
+        set_("seed", _number("seed", self.seed, low=0, high=2**63 - 1, integer=True))
 
     # Derived quantities -------------------------------------------------------------------
     @property
@@ -188,6 +215,10 @@ class TrackingConfig:
     def n_frames(self) -> int:
         return int(round(self.revolutions * self.period_s * self.fps))
 
+    @property
+    def frames_per_revolution(self) -> float:
+        return self.period_s * self.fps
+
     def replace(self, **changes) -> "TrackingConfig":
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
@@ -198,9 +229,20 @@ class TrackingConfig:
             out["distortion"] = {k: float(v) for k, v in asdict(self.distortion).items()}
         return out
 
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrackingConfig":
+        """The config :meth:`to_dict` described (unknown keys are an error naming them)."""
+        data = dict(data)
+        unknown = sorted(set(data) - {f for f in cls.__dataclass_fields__})
+        if unknown:
+            raise ValueError(f"unknown TrackingConfig field(s): {', '.join(unknown)}")
+        if isinstance(data.get("distortion"), dict):
+            data["distortion"] = BrownConrady(**data["distortion"])
+        return cls(**data)
+
     @property
     def key(self) -> str:
-        """A short stable hash of every field, for caching results."""
+        """A short stable hash of every field (the results store adds the package's source hash)."""
         text = json.dumps(self.to_dict(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -235,19 +277,22 @@ class TrackingResult:
 
 FRAME_COLUMNS = {
     "frame": "frame index",
-    "t_s": "time the frame was taken, s",
+    "t_s": "time the frame's exposure starts, s (run time; the target's motion time is t_s + start_phase_s)",
+    "t_mid_s": "mid-exposure instant, s: the instant the truth and the camera pose refer to",
+    "revolution": "revolution the mid-exposure instant falls in, counted from 0 (0: acquisition)",
     "detected": "target detected and localised",
     "true_x_m, true_y_m, true_z_m": "true target centre, world frame",
     "est_x_m, est_y_m, est_z_m": "estimated target centre, world frame (NaN if not detected)",
     "true_cam_x_m, true_cam_y_m, true_cam_z_m": "true centre, camera optical frame",
     "est_cam_x_m, est_cam_y_m, est_cam_z_m": "estimate, camera optical frame",
     "d_true_m, d_est_m": "distance camera optical centre → target centre",
+    "error_m": "signed d_est − d_true",
     "abs_error_m": "|d_est − d_true|",
     "u_px, v_px": "detected target centre in the image (circle centre / marker corner mean)",
     "offset_px": "distance of the detected centre from the image centre (cx, cy)",
     "true_u_px, true_v_px, true_offset_px": "projection of the true centre through the lens",
-    "q_yaw_rad, q_roll_rad, q_pitch_rad": "joint angles when the frame was taken",
-    "qd_yaw_rad_s, qd_roll_rad_s, qd_pitch_rad_s": "joint rates when the frame was taken",
+    "q_yaw_rad, q_roll_rad, q_pitch_rad": "joint angles at the mid-exposure instant",
+    "qd_yaw_rad_s, qd_roll_rad_s, qd_pitch_rad_s": "joint rates when the exposure starts",
     "alt_*": "sphere only: the same columns for the other localiser (circle ↔ ellipse) on the same frame",
 }
 
@@ -309,6 +354,31 @@ def make_renderer(config: TrackingConfig):
     return SceneRenderer(config.intrinsics, distortion=config.lens, target=config.target)
 
 
+def _outer_loop(config: TrackingConfig, kin, pixel_lens):
+    """The active mode's outer loop object, or None for passive."""
+    if config.mode != "active":
+        return None
+    if config.outer_loop == "paper":
+        from .control import ImageLoop
+
+        return ImageLoop.ziegler_nichols(config.intrinsics, config.fps, config.latency_frames, distortion=pixel_lens)
+    from .tracking import PredictiveLoop
+
+    return PredictiveLoop(config.intrinsics, kin, distortion=pixel_lens)
+
+
+_COLUMNS = [
+    "frame", "t_s", "t_mid_s", "revolution", "detected",
+    "true_x_m", "true_y_m", "true_z_m", "est_x_m", "est_y_m", "est_z_m",
+    "true_cam_x_m", "true_cam_y_m", "true_cam_z_m", "est_cam_x_m", "est_cam_y_m", "est_cam_z_m",
+    "d_true_m", "d_est_m", "error_m", "abs_error_m", "u_px", "v_px", "offset_px",
+    "true_u_px", "true_v_px", "true_offset_px",
+    "q_yaw_rad", "q_roll_rad", "q_pitch_rad", "qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s",
+    "alt_detected", "alt_est_x_m", "alt_est_y_m", "alt_est_z_m",
+    "alt_est_cam_x_m", "alt_est_cam_y_m", "alt_est_cam_z_m", "alt_d_est_m", "alt_error_m", "alt_abs_error_m",
+]
+
+
 def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> TrackingResult:
     """Run one closed-loop tracking experiment.
 
@@ -317,7 +387,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     config : TrackingConfig
     renderer : gimbal_lab.scene.SceneRenderer, optional
         A renderer built for this config's camera, lens and target (reused across runs by
-        :mod:`gimbal_lab.experiments`); built and closed here when omitted.
+        :mod:`gimbal_lab.runner`); built and closed here when omitted.
     progress : bool
         Show a progress bar over frames.
 
@@ -331,10 +401,10 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     """
     from .control import AxisPlant, GimbalAxis, ImageLoop, RateLoop
     from .kinematics import GimbalKinematics
-    from .tracking import PredictiveLoop
+    from .scene import add_sensor_noise
 
     if not isinstance(config, TrackingConfig):
-        raise TypeError("config must be a TrackingConfig")
+        raise TypeError(f"config must be a TrackingConfig, got {type(config).__name__}")
     own_renderer = renderer is None
     if own_renderer:
         renderer = make_renderer(config)
@@ -342,6 +412,8 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     K = config.intrinsics
     lens = config.lens
     path = config.path
+    phase = config.start_phase_s
+    half_exposure = 0.5 * config.exposure_s
     estimate = _Estimator(config)
     kin = GimbalKinematics.default()
     T_world_base = world_T_base(kin)
@@ -351,11 +423,9 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     axes = [GimbalAxis(p, dt_s) for p in plants]
     rate_loops = [RateLoop(p, dt_s=dt_s) for p in plants]
     pixel_lens = lens if config.calibrated else None
-    image_loop = predictive = None
-    if config.mode == "active" and config.outer_loop == "image":
-        image_loop = ImageLoop(K, distortion=pixel_lens)
-    elif config.mode == "active":
-        predictive = PredictiveLoop(K, kin, distortion=pixel_lens)
+    outer = _outer_loop(config, kin, pixel_lens)
+    image_loop = outer if isinstance(outer, ImageLoop) else None
+    predictive = None if (outer is None or image_loop is not None) else outer
 
     n_frames = config.n_frames
     n_steps = int(round(n_frames / config.fps * config.inner_rate_hz))
@@ -367,6 +437,9 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     timing = {"render_s": 0.0, "detect_s": 0.0, "total_s": 0.0}
     t_start = time.perf_counter()
 
+    def camera_pose(q):
+        return T_world_base @ kin.forward(q, check_limits=False)
+
     frames = range(n_frames)
     if progress:
         from tqdm.auto import tqdm
@@ -374,23 +447,23 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         frames = tqdm(frames, desc=config.label, unit="frame")
     for k in frames:
         t_s = k / config.fps
-        q = np.array([a.angle_rad for a in axes])
+        t_mid = t_s + half_exposure
+        q0 = np.array([a.angle_rad for a in axes])
         qd = np.array([a.rate_rad_s for a in axes])
-        T_world_cam = T_world_base @ kin.forward(q, check_limits=False)
-        T_world_target = target_pose(path, t_s)
+        # Within one exposure the joints turn at their current rate (the render's interpolation).
+        q = q0 + qd * half_exposure
+        T_world_cam = camera_pose(q)
+        T_world_target = target_pose(path, t_mid + phase)
 
         t0 = time.perf_counter()
         if config.exposure_s > 0 and config.n_subframes > 1:
-            # Within one exposure the gimbal's motion is interpolated at its current rate.
-            def pose_fn(t, q=q, qd=qd, t_k=t_s):
-                return T_world_base @ kin.forward(q + qd * (t - t_k), check_limits=False), target_pose(path, t)
+            def pose_fn(t, q0=q0, qd=qd, t_k=t_s):
+                return camera_pose(q0 + qd * (t - t_k)), target_pose(path, t + phase)
 
             image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
         else:
             image = renderer.render(T_world_cam, T_world_target)
-        if config.noise_std > 0:
-            noisy = image.astype(np.float32) + rng.normal(0.0, config.noise_std, image.shape)
-            image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        image = add_sensor_noise(image, config.noise_std, rng)
         t1 = time.perf_counter()
         uv, p_cam, p_cam_alt = estimate(image)
         timing["detect_s"] += time.perf_counter() - t1
@@ -411,23 +484,23 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         d_alt = float(np.linalg.norm(p_cam_alt))
         u, v = (uv if uv is not None else (math.nan, math.nan))
         rows.append(
-            (k, t_s, detected, *p_true, *p_est, *p_cam_true, *p_cam_est, d_true, d_est,
-             abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
+            (k, t_s, t_mid, int(t_mid // config.period_s), detected, *p_true, *p_est, *p_cam_true, *p_cam_est,
+             d_true, d_est, d_est - d_true, abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
              *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
-             alt_ok, *p_alt, *p_cam_alt, d_alt, abs(d_alt - d_true))
+             alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true))
         )
 
         # Outer loop: the measurement of frame k reaches it latency_frames frames later.
-        pending.append((t_s, uv, q))
+        pending.append((t_mid, uv, q, d_est if detected else None))
         if len(pending) > config.latency_frames:
-            t_capture, measured, q_capture = pending.popleft()
+            t_capture, measured, q_capture, range_m = pending.popleft()
             if image_loop is not None:
-                J_cam = kin.angular_jacobian(q, frame="camera", check_limits=False)
-                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q), float)
+                J_cam = kin.angular_jacobian(q0, frame="camera", check_limits=False)
+                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q0), float)
             elif predictive is not None:
-                predictive.observe(t_capture, measured, q_capture)
+                predictive.observe(t_capture, measured, q_capture, range_m=range_m)
         if predictive is not None:
-            rate_ref = predictive.command(t_s, q)
+            rate_ref = predictive.command(t_s, q0)
 
         # Inner loops and axis dynamics until the next frame.
         for _ in range(frame_steps[k + 1] - frame_steps[k]):
@@ -439,15 +512,5 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     timing["total_s"] = time.perf_counter() - t_start
     if own_renderer:
         renderer.close()
-    columns = [
-        "frame", "t_s", "detected",
-        "true_x_m", "true_y_m", "true_z_m", "est_x_m", "est_y_m", "est_z_m",
-        "true_cam_x_m", "true_cam_y_m", "true_cam_z_m", "est_cam_x_m", "est_cam_y_m", "est_cam_z_m",
-        "d_true_m", "d_est_m", "abs_error_m", "u_px", "v_px", "offset_px",
-        "true_u_px", "true_v_px", "true_offset_px",
-        "q_yaw_rad", "q_roll_rad", "q_pitch_rad", "qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s",
-        "alt_detected", "alt_est_x_m", "alt_est_y_m", "alt_est_z_m",
-        "alt_est_cam_x_m", "alt_est_cam_y_m", "alt_est_cam_z_m", "alt_d_est_m", "alt_abs_error_m",
-    ]
-    table = pd.DataFrame.from_records(rows, columns=columns)
+    table = pd.DataFrame.from_records(rows, columns=_COLUMNS)
     return TrackingResult(config=config, frames=table, timing=timing)

@@ -29,7 +29,16 @@ import numpy as np
 
 from .camera import BrownConrady, Intrinsics, backproject
 
-__all__ = ["LineOfSightFilter", "PredictiveLoop"]
+__all__ = ["LineOfSightFilter", "PredictiveLoop", "MAX_ANGULAR_ACCEL_RAD_S2", "MANOEUVRE_TIME_S"]
+
+
+#: The target class the predictive loop is built for, stated before any run and independent of
+#: the study's scene: a target whose line of sight, seen from the gimbal, accelerates by at most
+#: 6 rad/s² (e.g. 1.2 g of lateral acceleration at 2 m) ...
+MAX_ANGULAR_ACCEL_RAD_S2 = 6.0
+#: ... and changes that acceleration over no less than 0.5 s. The filter's white-jerk intensity is
+#: (MAX_ANGULAR_ACCEL_RAD_S2 / MANOEUVRE_TIME_S)² = (12 rad/s³)².
+MANOEUVRE_TIME_S = 0.5
 
 
 def _wrap(angle: float) -> float:
@@ -47,18 +56,28 @@ class LineOfSightFilter:
     Parameters
     ----------
     jerk_std_rad_s3 : float
-        Standard deviation of the unmodelled angular jerk, rad/s³, > 0. The study's circle seen
-        from 3 m has a line-of-sight jerk of (2π/T)³·R/D ≈ 10 rad/s³.
+        Standard deviation of the unmodelled angular jerk, rad/s³, > 0. Default: the target
+        class's limits, :data:`MAX_ANGULAR_ACCEL_RAD_S2` / :data:`MANOEUVRE_TIME_S`.
     meas_std_rad : float
-        Standard deviation of one bearing measurement, rad, > 0 (0.5 mrad ≈ 0.3 px here).
+        Standard deviation of one bearing measurement, rad, > 0 (0.5 mrad ≈ 0.3 px at 60° FOV).
+    max_accel_rad_s2 : float
+        Largest angular acceleration of the target class, rad/s², > 0: the prior spread of the
+        acceleration state when a track starts.
     """
 
-    def __init__(self, jerk_std_rad_s3: float = 20.0, meas_std_rad: float = 5e-4):
-        for name, value in (("jerk_std_rad_s3", jerk_std_rad_s3), ("meas_std_rad", meas_std_rad)):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be > 0, got {value!r}")
+    def __init__(self, jerk_std_rad_s3: float | None = None, meas_std_rad: float = 5e-4,
+                 max_accel_rad_s2: float | None = None):
+        if max_accel_rad_s2 is None:
+            max_accel_rad_s2 = MAX_ANGULAR_ACCEL_RAD_S2
+        if jerk_std_rad_s3 is None:
+            jerk_std_rad_s3 = max_accel_rad_s2 / MANOEUVRE_TIME_S
+        for name, value in (("jerk_std_rad_s3", jerk_std_rad_s3), ("meas_std_rad", meas_std_rad),
+                            ("max_accel_rad_s2", max_accel_rad_s2)):
+            if isinstance(value, bool) or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         self.q = float(jerk_std_rad_s3) ** 2
         self.r = float(meas_std_rad) ** 2
+        self.max_accel_rad_s2 = float(max_accel_rad_s2)
         self.reset()
 
     def reset(self) -> None:
@@ -91,7 +110,8 @@ class LineOfSightFilter:
         z = np.array([azimuth_rad, elevation_rad])
         if not self.initialised:
             self.x = np.column_stack((z, np.zeros(2), np.zeros(2)))
-            self.P = np.array([np.diag([self.r, 4.0, 100.0])] * 2)  # rate ±2 rad/s, accel ±10 rad/s²
+            # rate ±2 rad/s, acceleration ± the target class's limit
+            self.P = np.array([np.diag([self.r, 4.0, self.max_accel_rad_s2**2])] * 2)
             self.t_s = float(t_s)
             return
         dt = float(t_s) - self.t_s
@@ -136,21 +156,25 @@ class PredictiveLoop:
     coast_s : float
         How long the filter's prediction is followed after the last detection (>= 0); then the
         joints hold their angles.
-    range_m : float
-        Distance at which the line of sight is pointed through (the pointing angles hardly depend
-        on it: the camera centre is a few cm from the gimbal's centre of rotation).
+    range_m : float or None
+        Distance used to point through the line of sight when a detection brings no range of its
+        own (the pointing angles hardly depend on it: the camera centre is a few cm from the
+        gimbal's centre of rotation). None (default): every detection must bring its range, the
+        detector's own estimate (:meth:`observe`); the last one is kept for later commands.
     distortion : BrownConrady or None
         Lens model used to turn pixels into rays (None: pinhole, as the paper assumes).
     filter : LineOfSightFilter, optional
     """
 
     def __init__(self, intrinsics: Intrinsics, kinematics, kp_per_s: float = 15.0, max_rate_rad_s: float = 6.0,
-                 coast_s: float = 0.5, range_m: float = 3.0, distortion: BrownConrady | None = None,
+                 coast_s: float = 0.5, range_m: float | None = None, distortion: BrownConrady | None = None,
                  filter: LineOfSightFilter | None = None):
-        for name, value, low in (("kp_per_s", kp_per_s, 0.0), ("max_rate_rad_s", max_rate_rad_s, 0.0),
-                                 ("range_m", range_m, 0.0)):
-            if not (math.isfinite(value) and value > low):
-                raise ValueError(f"{name} must be > {low}, got {value!r}")
+        checks = [("kp_per_s", kp_per_s), ("max_rate_rad_s", max_rate_rad_s)]
+        if range_m is not None:
+            checks.append(("range_m", range_m))
+        for name, value in checks:
+            if isinstance(value, bool) or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if not (math.isfinite(coast_s) and coast_s >= 0):
             raise ValueError(f"coast_s must be >= 0, got {coast_s!r}")
         self.intrinsics = intrinsics
@@ -158,15 +182,23 @@ class PredictiveLoop:
         self.kp_per_s = float(kp_per_s)
         self.max_rate_rad_s = float(max_rate_rad_s)
         self.coast_s = float(coast_s)
-        self.range_m = float(range_m)
+        self.range_m = None if range_m is None else float(range_m)
         self.distortion = distortion
         self.filter = filter if filter is not None else LineOfSightFilter()
         self._pivot = np.asarray(kinematics.centre_base, float)  # the joints' common centre of rotation
 
-    def observe(self, t_capture_s: float, uv_px, q_capture_rad) -> None:
-        """Fuse a detection made on the frame taken at ``t_capture_s`` with joints ``q_capture_rad``."""
+    def observe(self, t_capture_s: float, uv_px, q_capture_rad, range_m: float | None = None) -> None:
+        """Fuse a detection made on the frame taken at ``t_capture_s`` with joints ``q_capture_rad``.
+
+        ``range_m`` is the detector's own distance estimate (camera → target), m; without it the
+        last known range (or the constructor's ``range_m``) is used.
+        """
         if uv_px is None:
             return
+        if range_m is not None and math.isfinite(range_m) and range_m > 0:
+            self.range_m = float(range_m)
+        if self.range_m is None:
+            raise ValueError("the first detection must bring a range (range_m): the loop has no default range")
         T = self.kinematics.forward(np.asarray(q_capture_rad, float), check_limits=False)
         ray_cam = backproject(np.asarray(uv_px, float).reshape(1, 2), self.intrinsics, self.distortion)[0]
         ray_base = T[:3, :3] @ ray_cam

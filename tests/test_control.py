@@ -388,3 +388,41 @@ def test_image_loop_centres_a_target_with_the_project_kinematics():
     assert sim.error_px[0, 0] < -80 and sim.error_px[0, 1] < -60  # ≈ fx·(−0.5, −0.4)/3
     assert np.linalg.norm(sim.error_px[-1]) < 0.01
     assert np.max(np.abs(sim.q_rad[:, 1])) < 1e-3  # roll stays level
+
+
+# --- the outer loop's own Ziegler–Nichols tuning -------------------------------------------------
+from gimbal_lab.control import outer_loop_delay_s, outer_loop_gains, outer_loop_plant  # noqa: E402
+
+
+@pytest.mark.parametrize("fps, latency", [(30.0, 0), (30.0, 1), (30.0, 2), (60.0, 1)])
+def test_outer_loop_ultimate_gain_matches_the_hand_derivation(fps, latency):
+    """e^{−sL}/s: phase −π/2 − ωL = −π at ω = π/(2L), |P| = 1/ω there, so Ku = π/(2L), Tu = 4L."""
+    L = (latency + 0.5) / fps
+    assert outer_loop_delay_s(fps, latency) == pytest.approx(L, rel=1e-15)
+    Ku, Tu = ultimate_gain(outer_loop_plant(fps, latency))
+    assert Ku == pytest.approx(math.pi / (2 * L), rel=1e-8)  # 6th-order Padé: 4e-11 measured
+    assert Tu == pytest.approx(4 * L, rel=1e-8)
+
+
+def test_outer_loop_gains_are_the_zn_pi_rule():
+    g = outer_loop_gains(30.0, 1)
+    L = 1.5 / 30.0
+    assert g.kp == pytest.approx(0.45 * math.pi / (2 * L), rel=1e-8)  # 14.14 /s
+    assert g.ki == pytest.approx(g.kp / (4 * L / 1.2), rel=1e-8)  # 84.8 /s²
+    assert g.kd == 0.0
+    loop = ImageLoop.ziegler_nichols(Intrinsics.default(), 30.0, 1, max_rate_rad_s=2.0)
+    assert (loop.kp_per_s, loop.ki_per_s2, loop.max_rate_rad_s) == (g.kp, g.ki, 2.0)
+    with pytest.raises(ValueError, match="latency_frames"):
+        outer_loop_gains(30.0, -1)
+    with pytest.raises(ValueError, match="fps"):
+        outer_loop_gains(0.0, 1)
+
+
+def test_simulate_pointing_delays_the_pixel_by_the_latency():
+    """With one frame of latency the loop sees frame k's pixel at frame k+1: the first command is 0."""
+    K = Intrinsics.default()
+    target = np.array([3.0, -0.65, -0.3])
+    fresh = simulate_pointing(ImageLoop(K), _camera_pose, lambda t: target, 0.2)
+    late = simulate_pointing(ImageLoop(K), _camera_pose, lambda t: target, 0.2, latency_frames=1)
+    assert np.all(late.qdot_rad_s[0] == 0) and np.any(fresh.qdot_rad_s[0] != 0)
+    assert late.qdot_rad_s[1] == pytest.approx(fresh.qdot_rad_s[0], abs=1e-12)  # same pixel, one frame later

@@ -416,3 +416,39 @@ def test_missing_backend_error_names_the_packages():
     assert out.returncode == 0, out.stderr
     line = out.stdout.strip()
     assert line == "rendered" or ("libosmesa6" in line and "libegl1 libgl1-mesa-dri" in line), line
+
+
+# --- sensor noise -----------------------------------------------------------------------------
+def test_sensor_noise_is_a_rounded_gaussian():
+    """Oracle: P(round(n) = k) = Φ((k + ½)/σ) − Φ((k − ½)/σ) for n ~ N(0, σ²) (scipy.stats.norm).
+
+    2·10⁶ samples: each bin's frequency within 5 standard errors of its probability.
+    """
+    from scipy.stats import norm
+
+    from gimbal_lab.scene import add_sensor_noise
+
+    image = np.full((1000, 1000, 2), 100, np.uint8)
+    noisy = add_sensor_noise(image, 2.0, np.random.default_rng(5)).astype(int) - 100
+    n = noisy.size
+    for k in range(-7, 8):
+        p = norm.cdf((k + 0.5) / 2.0) - norm.cdf((k - 0.5) / 2.0)
+        freq = np.count_nonzero(noisy == k) / n
+        assert abs(freq - p) < 5 * np.sqrt(p * (1 - p) / n) + 1e-5, (k, freq, p)
+    assert noisy.std() == pytest.approx(np.sqrt(4.0 + 1 / 12), rel=5e-3)  # σ² + 1/12 of rounding
+
+
+def test_sensor_noise_is_seeded_and_clipped():
+    from gimbal_lab.scene import add_sensor_noise
+
+    image = np.zeros((50, 60, 3), np.uint8)
+    image[:, 30:] = 255
+    a = add_sensor_noise(image, 3.0, np.random.default_rng(1))
+    assert np.array_equal(a, add_sensor_noise(image, 3.0, np.random.default_rng(1)))
+    assert not np.array_equal(a, add_sensor_noise(image, 3.0, np.random.default_rng(2)))
+    assert a.dtype == np.uint8 and a[:, :30].min() == 0 and a[:, 30:].max() == 255
+    assert add_sensor_noise(image, 0.0, np.random.default_rng(1)) is image
+    with pytest.raises(ValueError, match="std"):
+        add_sensor_noise(image, float("nan"), np.random.default_rng(1))
+    with pytest.raises(TypeError, match="uint8"):
+        add_sensor_noise(image.astype(float), 2.0, np.random.default_rng(1))

@@ -45,7 +45,7 @@ def test_loop_points_camera_at_a_static_target():
     for k in range(60):
         T = KIN.forward(q)
         p_cam = T[:3, :3].T @ (target - T[:3, 3])
-        loop.observe(k * dt, project(p_cam, CAM)[0], q)
+        loop.observe(k * dt, project(p_cam, CAM)[0], q, range_m=float(np.linalg.norm(p_cam)))
         q = q + loop.command(k * dt, q) * dt
     T = KIN.forward(q)
     axis = T[:3, 2]
@@ -58,6 +58,8 @@ def test_loop_points_camera_at_a_static_target():
 def test_loop_holds_without_detections():
     loop = PredictiveLoop(CAM, KIN, coast_s=0.2)
     assert np.array_equal(loop.command(0.0, np.zeros(3)), np.zeros(3))
-    loop.observe(0.0, (400.0, 200.0), np.zeros(3))
+    with pytest.raises(ValueError, match="range"):
+        loop.observe(0.0, (400.0, 200.0), np.zeros(3))  # no range yet: the loop has no default
+    loop.observe(0.0, (400.0, 200.0), np.zeros(3), range_m=3.0)
     assert np.any(loop.command(0.1, np.zeros(3)) != 0)
     assert np.array_equal(loop.command(0.5, np.zeros(3)), np.zeros(3))  # past the coast time: hold

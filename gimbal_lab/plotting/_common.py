@@ -14,10 +14,17 @@ def results_dir(sub: str = "") -> Path:
     return path
 
 
-def save_figure(fig, name: str, out_dir: str | os.PathLike | None = None, dpi: int = 120) -> Path:
-    """Save ``fig`` as ``<out_dir>/<name>.png`` (default ``results/figures``) and return the path."""
+def save_figure(fig, name: str, out_dir: str | os.PathLike | None = None, dpi: int = 120, formats=None):
+    """Save ``fig`` as ``<out_dir>/<name>.png`` (default folder ``results/figures``).
+
+    With ``formats`` (e.g. ``("png", "svg")``: SVG or PDF for papers) every format is written
+    and the list of paths is returned; without it, the PNG's path.
+    """
     folder = Path(out_dir) if out_dir is not None else results_dir("figures")
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}.png"
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
-    return path
+    paths = []
+    for fmt in formats or ("png",):
+        path = folder / f"{name}.{fmt}"
+        fig.savefig(path, dpi=dpi, bbox_inches="tight")
+        paths.append(path)
+    return paths if formats else paths[0]

@@ -1,21 +1,22 @@
-"""Figures of the closed-loop study (paper §4.1, Figs. 10–14)."""
+"""Figures of the closed-loop study (paper §4.1, Figs. 10–14) and of its verdicts."""
 
 from __future__ import annotations
 
-import numpy as np
 import matplotlib.pyplot as plt
+import numpy as np
 
 from ..trajectories import Trajectory
 
-__all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset"]
+__all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
+_VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
 
 
 def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
     """Fig. 10: the circular and diagonal target motions in the world, with the gimbal camera."""
     if ax is None:
-        fig = plt.figure(figsize=(6, 5))
+        fig = plt.figure(figsize=(7.5, 5.5))
         ax = fig.add_subplot(projection="3d")
     t = np.linspace(0, period_s, 200)
     for traj, colour in ((Trajectory.circular(period_s), "tab:red"), (Trajectory.diagonal(period_s), "tab:green")):
@@ -23,71 +24,97 @@ def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
         ax.plot(p[:, 0], p[:, 1], p[:, 2], color=colour, label=traj.kind)
     ax.scatter(*camera_m, color="k", marker="s", label="gimbal camera")
     ax.plot([camera_m[0], 3.0], [camera_m[1], 0.0], [camera_m[2], 2.0], "k:", lw=1, label="home optical axis")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    ax.set_xlabel("x [m]", labelpad=8)
+    ax.set_ylabel("y [m]", labelpad=8)
+    ax.set_zlabel("z [m]", labelpad=8)
     ax.set_xlim(0, 4)
     ax.set_ylim(-2, 2)
     ax.set_zlim(0, 4)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(plt.MultipleLocator(1.0))  # whole metres: no colliding labels
     ax.set_box_aspect((1, 1, 1))  # equal metres on every axis
-    ax.legend(loc="upper left")
+    ax.figure.legend(*ax.get_legend_handles_labels(), loc="center left", bbox_to_anchor=(0.78, 0.5), frameon=False)
+    ax.figure.subplots_adjust(right=0.78)
     ax.set_title("Target trajectories (world frame)")
     return ax
 
 
 def plot_error_bars(summary, target: str, ax=None, methods=None):
-    """Figs. 11 and 13: mean ± std distance error per condition, passive vs active bars.
+    """Figs. 11 and 13: mean distance error per cell over replicates, with its 95 % interval.
 
     Parameters
     ----------
     summary : DataFrame
-        :func:`gimbal_lab.experiments.summarize` output.
+        :func:`gimbal_lab.studies.paper.summary_table` output (columns ``mean_abs_error_m``,
+        ``ci_low_m``, ``ci_high_m`` per cell and method).
     target : {"sphere", "aruco"}
     methods : list of str, optional
-        Sphere methods to show side by side (e.g. ["circle", "ellipse"]); default: all present.
+        Localisers to show side by side (e.g. ["circle", "ellipse"]); default: the first present.
+
+    Notes
+    -----
+    The whiskers are the 95 % t-interval of the mean over replicates (the paper shows ± one std of
+    frames, which mixes spread within a revolution with uncertainty).
     """
     if ax is None:
-        _, ax = plt.subplots(figsize=(8, 4))
+        _, ax = plt.subplots(figsize=(8, 4.2))
     df = summary[summary["target"] == target]
-    methods = list(dict.fromkeys(df["method"])) if methods is None else list(methods)
+    if df.empty:
+        raise ValueError(f"summary holds no {target} rows")
+    methods = list(dict.fromkeys(df["method"]))[:1] if methods is None else list(methods)
     conditions = [(d, t) for d in ("undistorted", "distorted") for t in ("circular", "diagonal")]
     series = [(meth, mode) for meth in methods for mode in ("passive", "active")]
     width = 0.8 / len(series)
     x = np.arange(len(conditions))
     hatches = ["", "//", "..", "xx"]
     for j, (meth, mode) in enumerate(series):
-        means, stds = [], []
+        means, lows, highs = [], [], []
         for d, t in conditions:
             row = df[(df["distortion"] == d) & (df["trajectory"] == t) & (df["mode"] == mode) & (df["method"] == meth)]
-            means.append(1000 * row["mean_error_m"].iloc[0] if len(row) else np.nan)
-            stds.append(1000 * row["std_error_m"].iloc[0] if len(row) else np.nan)
+            if len(row) > 1:
+                raise ValueError(f"summary holds {len(row)} rows for {target}/{d}/{t}/{mode}/{meth}")
+            ok = len(row) == 1
+            means.append(1000 * row["mean_abs_error_m"].iloc[0] if ok else np.nan)
+            lows.append(1000 * row["ci_low_m"].iloc[0] if ok else np.nan)
+            highs.append(1000 * row["ci_high_m"].iloc[0] if ok else np.nan)
+        means, lows, highs = map(np.asarray, (means, lows, highs))
+        yerr = np.vstack((means - lows, highs - means))
         label = mode if len(methods) == 1 else f"{meth}, {mode}"
-        ax.bar(x + (j - (len(series) - 1) / 2) * width, means, width, yerr=stds, capsize=3,
+        ax.bar(x + (j - (len(series) - 1) / 2) * width, means, width, yerr=yerr, capsize=3,
                color=_MODE_COLOURS[mode], hatch=hatches[methods.index(meth) % len(hatches)],
                edgecolor="k", linewidth=0.5, label=label)
     ax.set_xticks(x, [f"{d}\n{t}" for d, t in conditions])
-    ax.set_ylabel("|d_est − d_true| [mm] (mean ± std)")
+    ax.set_ylabel("|d_est − d_true| [mm]\nmean of replicates, 95 % CI")
+    ax.set_ylim(bottom=0)
     ax.set_title(f"Distance error, {target}")
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.grid(axis="y", alpha=0.3)
     return ax
 
 
 def plot_xyz(result, revolution: int = 1, fig=None):
-    """Figs. 12 and 14: estimated vs true target x, y, z (world) over one revolution."""
+    """Figs. 12 and 14: estimated vs true target x, y, z (world) over one revolution.
+
+    ``revolution`` counts from 0 (the acquisition revolution); the title counts from 1, as users do.
+    """
     if fig is None:
         fig = plt.figure(figsize=(9, 6))
     axes = fig.subplots(3, 1, sharex=True)
     f = result.frames
-    period = result.config.period_s
-    sel = f[(f["t_s"] >= revolution * period) & (f["t_s"] < (revolution + 1) * period)]
+    n_rev = int(round(result.config.revolutions))
+    if not 0 <= revolution < max(n_rev, 1):
+        raise ValueError(f"revolution must be in [0, {n_rev - 1}] for this run, got {revolution!r}")
+    sel = f[f["revolution"] == revolution]
     for ax, axis in zip(axes, "xyz"):
-        ax.plot(sel["t_s"], sel[f"true_{axis}_m"], "k-", lw=1.5, label="ground truth")
-        ax.plot(sel["t_s"], sel[f"est_{axis}_m"], ".", color=_MODE_COLOURS[result.config.mode], ms=4, label="estimate")
+        ax.plot(sel["t_mid_s"], sel[f"true_{axis}_m"], "k-", lw=1.5, label="ground truth")
+        ax.plot(sel["t_mid_s"], sel[f"est_{axis}_m"], ".", color=_MODE_COLOURS[result.config.mode], ms=4,
+                label="estimate")
         ax.set_ylabel(f"{axis} [m]")
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right")
-    axes[0].set_title(f"{result.config.label}: world coordinates over revolution {revolution}")
+    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.12), ncol=2, frameon=False, fontsize=8)
+    kind = "acquisition" if revolution == 0 else "measured"
+    fig.suptitle(f"{result.config.label} (seed {result.config.seed}): world coordinates, revolution "
+                 f"{revolution + 1} of {n_rev} ({kind})", fontsize=10)
     axes[-1].set_xlabel("t [s]")
     return fig
 
@@ -95,7 +122,8 @@ def plot_xyz(result, revolution: int = 1, fig=None):
 def plot_pixel_offset(results, labels=None, ax=None):
     """Distance of the detected target from the image centre over time, one line per run.
 
-    ``labels`` (one per run) default to the runs' labels.
+    ``labels`` (one per run) default to the runs' labels. The first revolution is shaded
+    (acquisition).
     """
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
@@ -103,9 +131,50 @@ def plot_pixel_offset(results, labels=None, ax=None):
     if len(labels) != len(results):
         raise ValueError(f"labels must have one entry per run ({len(results)}), got {len(labels)}")
     for r, label in zip(results, labels):
-        ax.plot(r.frames["t_s"], r.frames["offset_px"], lw=1, label=label)
+        ax.plot(r.frames["t_mid_s"], r.frames["offset_px"], lw=1, label=label)
+    if results:
+        ax.axvspan(0, results[0].config.period_s, color="0.9", zorder=0, label="acquisition")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("offset from image centre [px]")
+    ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return ax
+
+
+def plot_forest(verdicts, ax=None):
+    """Forest plot of the claims: each paired difference a − b with its interval, in units of δ.
+
+    Every row is one checked condition; the shaded band is ±δ (the smallest effect of interest,
+    or the equivalence margin for "≈" claims), so a claim "a < b" holds where the interval lies
+    left of 0 and its point left of −1. Colours give the verdict; the right margin prints the
+    difference and interval in mm.
+    """
+    n = len(verdicts)
+    if n == 0:
+        raise ValueError("no verdicts to plot")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(9, 0.32 * n + 1.2))
+    y = np.arange(n)[::-1]
+    scale = verdicts["delta"].to_numpy()
+    point = verdicts["difference"].to_numpy() / scale
+    low = verdicts["low"].to_numpy() / scale
+    high = verdicts["high"].to_numpy() / scale
+    ax.axvspan(-1, 1, color="0.9", zorder=0, label="±δ")
+    ax.axvline(0, color="k", lw=0.8)
+    for verdict, colour in _VERDICT_COLOURS.items():
+        sel = verdicts["verdict"].to_numpy() == verdict
+        if sel.any():
+            ax.errorbar(point[sel], y[sel], xerr=np.vstack((point[sel] - low[sel], high[sel] - point[sel])),
+                        fmt="o", color=colour, ms=4, capsize=2, label=verdict)
+    labels = [f"{r.id} {r.condition}: {r.a} {'≈' if r.kind == 'equivalent' else '<'} {r.b}" for r in verdicts.itertuples()]
+    ax.set_yticks(y, labels, fontsize=7)
+    ax.set_xscale("symlog", linthresh=2.0)
+    ax.set_xlabel("(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1)")
+    for yi, r in zip(y, verdicts.itertuples()):
+        ax.annotate(f"{1000 * r.difference:+.1f} [{1000 * r.low:+.1f}, {1000 * r.high:+.1f}] mm",
+                    (1.01, yi), xycoords=("axes fraction", "data"), fontsize=6.5, va="center")
+    ax.set_ylim(-0.7, n - 0.3)
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, frameon=False, fontsize=8)
     return ax

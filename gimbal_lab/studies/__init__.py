@@ -1,0 +1,21 @@
+"""The lab's studies: one module each, with its grid, tables, claims and report.
+
+A study module defines ``NAME``, ``DESCRIPTION``, a parameters dataclass with ``from_toml``, and
+``run_study(params, out, store, executor, jobs, progress)`` used by ``gimbal-lab run NAME``.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+__all__ = ["STUDIES", "load"]
+
+#: Study name → module (``gimbal-lab run --list`` prints them).
+STUDIES = {"paper": "gimbal_lab.studies.paper"}
+
+
+def load(name: str):
+    """The module of study ``name`` (a ValueError lists the known studies)."""
+    if name not in STUDIES:
+        raise ValueError(f"unknown study {name!r}; known studies: {', '.join(sorted(STUDIES))}")
+    return import_module(STUDIES[name])
