@@ -173,3 +173,10 @@ def test_study_config_from_toml(tmp_path):
         paper.PaperStudy.from_toml(bad)
     with pytest.raises(FileNotFoundError, match="does not exist"):
         paper.PaperStudy.from_toml(tmp_path / "missing.toml")
+
+
+def test_the_shipped_study_config_is_the_study_default():
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[1] / "data" / "studies" / "paper.toml"
+    assert paper.PaperStudy.from_toml(shipped) == paper.PaperStudy()
