@@ -19,7 +19,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from . import __version__
 
-    parser = argparse.ArgumentParser(prog="gimbal-lab", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="gimbal-lab",
+        description="gimbal-lab: active (gimbal) vs passive visual tracking from drones, after Hansen & "
+                    "de Figueiredo, Drones 2024 (doi:10.3390/drones8020055).",
+        epilog="Start with: gimbal-lab run paper --out results   (gimbal-lab COMMAND --help for a command's options)")
     parser.add_argument("--version", action="version", version=f"gimbal-lab {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
@@ -39,7 +43,8 @@ def main(argv=None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
-    return int(args.func(args, parser) or 0)
+    # a command module may set ``_parser`` to its sub-parser so its errors name the sub-command
+    return int(args.func(args, getattr(args, "_parser", None) or parser) or 0)
 
 
 if __name__ == "__main__":

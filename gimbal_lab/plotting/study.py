@@ -170,6 +170,10 @@ def plot_forest(verdicts, ax=None):
     labels = [f"{r.id} {r.condition}: {r.a} {'≈' if r.kind == 'equivalent' else '<'} {r.b}" for r in verdicts.itertuples()]
     ax.set_yticks(y, labels, fontsize=7)
     ax.set_xscale("symlog", linthresh=2.0)
+    reach = float(np.nanmax(np.abs(np.concatenate((low, high, [2.0])))))
+    ax.set_xlim(-1.6 * reach, 1.6 * reach)
+    ticks = [t for t in (-1000, -100, -10, -1, 0, 1, 10, 100, 1000) if abs(t) <= 1.6 * reach]
+    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
     ax.set_xlabel("(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1)")
     for yi, r in zip(y, verdicts.itertuples()):
         ax.annotate(f"{1000 * r.difference:+.1f} [{1000 * r.low:+.1f}, {1000 * r.high:+.1f}] mm",
