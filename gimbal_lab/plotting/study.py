@@ -86,7 +86,7 @@ def plot_error_bars(summary, target: str, ax=None, methods=None):
     ax.set_xticks(x, [f"{d}\n{t}" for d, t in conditions])
     ax.set_ylabel("|d_est − d_true| [mm]\nmean of replicates, 95 % CI")
     ax.set_ylim(bottom=0)
-    ax.set_title(f"Distance error, {target}")
+    ax.set_title("Distance error, " + {"sphere": "sphere", "aruco": "ArUco marker"}.get(target, target))
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.grid(axis="y", alpha=0.3)
     return ax
