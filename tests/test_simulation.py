@@ -35,8 +35,8 @@ def test_every_grid_cell_runs(config, renderers):
     assert len(f) == config.n_frames == 6
     assert f["detected"].all()  # the target is fully in view all along both motions
     assert np.isfinite(f["abs_error_m"]).all()
-    # 10 % of the distance bounds every estimator here, distorted or not (typical: < 3 %)
-    assert (f["abs_error_m"] < 0.1 * f["d_true_m"]).all()
+    # measured worst case 5.0 % of the distance (circle method, passive, 18° off axis; ArUco ≤ 3.3 %)
+    assert (f["abs_error_m"] < 0.06 * f["d_true_m"]).all()
 
 
 def test_same_seed_same_table(renderers):
