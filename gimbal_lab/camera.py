@@ -1,4 +1,4 @@
-"""Pinhole camera with Brown–Conrady lens distortion.
+"""Pinhole camera with Brown–Conrady or Kannala–Brandt (fisheye) lens distortion.
 
 Conventions (stated once, pinned by tests against ``cv2.projectPoints``):
 
@@ -13,9 +13,19 @@ Conventions (stated once, pinned by tests against ``cv2.projectPoints``):
       x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²)
       y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y
 
+* Fisheye lenses follow OpenCV's ``cv2.fisheye`` (Kannala–Brandt) convention: a ray at angle θ
+  from the optical axis lands at distance θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) from the
+  principal point (normalised), along the ray's own azimuth. θ may exceed 90° (a 185° lens), so
+  :func:`project` takes it from the 3-D direction, θ = atan2(√(x² + y²), z), and
+  :func:`backproject` returns unit rays for such a lens.
+
+Both lens models are accepted wherever a lens is: :func:`distort`, :func:`undistort`,
+:func:`project`, :func:`backproject`, :func:`undistort_pixels`, :func:`distort_pixels`.
+
 Notes
 -----
-Paper §3.2 (pinhole model, K) and §4.1 (Brown–Conrady radial distortion of the simulated camera).
+Paper §3.2 (pinhole model, K) and §4.1 (Brown–Conrady radial distortion of the simulated camera);
+§4.1.2 (end) and §5 ask how far rectification can go with fisheye lenses.
 """
 
 from __future__ import annotations
@@ -28,6 +38,8 @@ import numpy as np
 __all__ = [
     "Intrinsics",
     "BrownConrady",
+    "KannalaBrandt",
+    "LENS_TYPES",
     "project",
     "distort",
     "undistort",
@@ -227,12 +239,163 @@ class BrownConrady:
         return float(np.sqrt(positive.min())) if positive.size else math.inf
 
 
-def _check_distortion(distortion) -> BrownConrady | None:
+@dataclass(frozen=True)
+class KannalaBrandt:
+    """Fisheye lens in OpenCV's ``cv2.fisheye`` (Kannala–Brandt, equidistant base) convention.
+
+    A ray at angle θ from the optical axis is imaged at normalised radius
+    θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸), along its own azimuth; pixels are
+    u = fx·x_d + cx, v = fy·y_d + cy (no skew).
+
+    Parameters
+    ----------
+    k1, k2, k3, k4 : float
+        OpenCV's fisheye coefficients D = (k1, k2, k3, k4); all zero is the equidistant lens
+        θ_d = θ.
+    max_field_rad : float or None
+        Largest field angle θ the lens images, rad, in (0, π]. None: where θ_d(θ) stops rising
+        (first zero of dθ_d/dθ), or π. Points beyond it are rejected with a clear error.
+
+    Notes
+    -----
+    Paper §4.1.2 (end) and §5 hypothesise that rectifying fisheye images hurts tracking; this model
+    lets the lab render and detect through such lenses (notebook on the lens sweep).
+
+    Examples
+    --------
+    >>> lens = KannalaBrandt()             # equidistant
+    >>> round(float(lens.theta_d(np.pi / 2)), 6)
+    1.570796
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    k4: float = 0.0
+    max_field_rad: float | None = None
+
+    def __post_init__(self):
+        for name in ("k1", "k2", "k3", "k4"):
+            object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+        rising = self._rising_limit()
+        if self.max_field_rad is None:
+            object.__setattr__(self, "max_field_rad", rising)
+        else:
+            limit = _finite_float("max_field_rad", self.max_field_rad)
+            if not 0.0 < limit <= math.pi:
+                raise ValueError(f"max_field_rad must be in (0, π], got {self.max_field_rad!r}")
+            if limit > rising + 1e-12:
+                raise ValueError(f"max_field_rad {limit:.6g} rad lies beyond where θ_d(θ) stops rising "
+                                 f"({rising:.6g} rad): the lens would image two angles at one radius")
+            object.__setattr__(self, "max_field_rad", limit)
+
+    def _rising_limit(self) -> float:
+        # dθ_d/dθ = 1 + 3 k1 θ² + 5 k2 θ⁴ + 7 k3 θ⁶ + 9 k4 θ⁸, a polynomial in s = θ²
+        roots = np.roots([9 * self.k4, 7 * self.k3, 5 * self.k2, 3 * self.k1, 1.0])
+        real = roots[np.isreal(roots)].real
+        positive = np.sqrt(real[real > 0])
+        positive = positive[positive <= math.pi]
+        return float(positive.min()) if positive.size else math.pi
+
+    @classmethod
+    def equidistant_for_fov(cls, width_px: int, hfov_rad: float) -> tuple["KannalaBrandt", float]:
+        """The equidistant lens (all k = 0) and the focal length that maps ``hfov_rad`` onto the width.
+
+        With θ_d = θ the image radius is f·θ, so the image's half width W/2 is reached at
+        θ = hfov/2 when f = (W/2)/(hfov/2). Returns (lens, f_px); the lens images up to
+        max(hfov/2, its own limit) so a wide image circle stays valid.
+        """
+        width = _finite_float("width_px", width_px)
+        hfov = _finite_float("hfov_rad", hfov_rad)
+        if width <= 0 or not 0.0 < hfov <= 2 * math.pi:
+            raise ValueError(f"need width_px > 0 and hfov_rad in (0, 2π], got {width_px!r}, {hfov_rad!r}")
+        return cls(), (width / 2.0) / (hfov / 2.0)
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """(k1, k2, k3, k4), shape (4,), as ``cv2.fisheye`` takes them."""
+        return np.array([self.k1, self.k2, self.k3, self.k4])
+
+    @property
+    def is_identity(self) -> bool:
+        """Always False: even the equidistant fisheye is not a pinhole."""
+        return False
+
+    def theta_d(self, theta):
+        """Normalised image radius of rays at angle(s) ``theta`` from the axis (rad)."""
+        t = np.asarray(theta, dtype=float)
+        t2 = t * t
+        return t * (1.0 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4))))
+
+    def _dtheta_d(self, t):
+        t2 = t * t
+        return 1.0 + t2 * (3 * self.k1 + t2 * (5 * self.k2 + t2 * (7 * self.k3 + t2 * 9 * self.k4)))
+
+    def theta(self, theta_d, tol: float = 1e-14, max_iter: int = 60) -> np.ndarray:
+        """Invert θ_d(θ) on [0, max_field_rad] (safeguarded Newton); errors name the valid range."""
+        td = np.asarray(theta_d, dtype=float)
+        if not np.all(np.isfinite(td)) or np.any(td < 0):
+            raise ValueError("theta_d must be finite and >= 0")
+        top = float(self.theta_d(self.max_field_rad))
+        beyond = td > top * (1 + 1e-12)
+        if beyond.any():
+            raise UndistortionError(
+                f"{int(beyond.sum())} point(s) lie outside the lens's image circle: normalised radius "
+                f"{float(td[beyond].max()):.6g} > {top:.6g}, the image of the largest field angle "
+                f"{math.degrees(self.max_field_rad):.2f}°")
+        lo, hi = np.zeros_like(td), np.full_like(td, self.max_field_rad)
+        t = np.minimum(td, self.max_field_rad)
+        for _ in range(max_iter):
+            f = self.theta_d(t) - td
+            lo = np.where(f < 0, t, lo)
+            hi = np.where(f > 0, t, hi)
+            step = f / self._dtheta_d(t)
+            t_new = t - step
+            out = (t_new <= lo) | (t_new >= hi)
+            t_new = np.where(out, 0.5 * (lo + hi), t_new)
+            if np.all(np.abs(t_new - t) < tol):
+                t = t_new
+                break
+            t = t_new
+        return t
+
+
+#: The lens models every function of this module accepts (besides None, the ideal pinhole).
+LENS_TYPES = (BrownConrady, KannalaBrandt)
+
+
+def _check_distortion(distortion):
     if distortion is None:
         return None
-    if not isinstance(distortion, BrownConrady):
-        raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+    if not isinstance(distortion, LENS_TYPES):
+        raise TypeError(
+            f"distortion must be a BrownConrady, a KannalaBrandt or None, got {type(distortion).__name__}")
     return None if distortion.is_identity else distortion
+
+
+def _fisheye_distort(xy: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta = np.arctan(r)
+    _check_field(theta, d)
+    scale = np.where(r > 0, d.theta_d(theta) / np.where(r > 0, r, 1.0), 1.0)
+    return xy * scale[:, None]
+
+
+def _check_field(theta: np.ndarray, d: KannalaBrandt) -> None:
+    beyond = theta > d.max_field_rad + 1e-12
+    if beyond.any():
+        raise ValueError(
+            f"{int(beyond.sum())} point(s) lie at {math.degrees(float(theta[beyond].max())):.2f}° from the "
+            f"optical axis, beyond the lens's field limit {math.degrees(d.max_field_rad):.2f}°")
+
+
+def _fisheye_undistort(xy_d: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    """Distorted normalised points → unit rays, shape (N, 3)."""
+    rd = np.hypot(xy_d[:, 0], xy_d[:, 1])
+    theta = d.theta(rd)
+    safe = np.where(rd > 0, rd, 1.0)
+    s = np.where(rd > 0, np.sin(theta) / safe, 0.0)
+    return np.column_stack((xy_d[:, 0] * s, xy_d[:, 1] * s, np.cos(theta)))
 
 
 def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
@@ -242,8 +405,9 @@ def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
     ----------
     xy_norm : array_like, shape (N, 2) or (2,)
         Undistorted normalised coordinates (x/z, y/z).
-    distortion : BrownConrady or None
-        None (or all zeros) returns the input unchanged.
+    distortion : BrownConrady, KannalaBrandt or None
+        None (or all zeros) returns the input unchanged. A fisheye accepts normalised points
+        in front of the camera only (field angle < 90°); use :func:`project` beyond.
 
     Returns
     -------
@@ -254,6 +418,8 @@ def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
     d = _check_distortion(distortion)
     if d is None:
         return xy.copy()
+    if isinstance(d, KannalaBrandt):
+        return _fisheye_distort(xy, d)
     x, y = xy[:, 0], xy[:, 1]
     r2 = x * x + y * y
     radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
@@ -305,6 +471,14 @@ def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_
         return xd.copy()
     if not np.all(np.isfinite(xd)):
         raise ValueError("xy_norm must be finite")
+    if isinstance(d, KannalaBrandt):
+        rays = _fisheye_undistort(xd, d)
+        behind = rays[:, 2] <= 1e-12
+        if behind.any():
+            raise UndistortionError(
+                f"{int(behind.sum())} point(s) image rays at 90° or more from the optical axis, which have "
+                "no normalised pinhole coordinates; use backproject for unit rays")
+        return rays[:, :2] / rays[:, 2:3]
     r_limit = d.radial_limit()
     x = xd.copy()
     converged = np.zeros(len(xd), dtype=bool)
@@ -359,7 +533,9 @@ def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None 
     Returns
     -------
     ndarray, shape (N, 2)
-        Pixel coordinates (u, v); rows for points with z ≤ 0 (behind the camera) are NaN.
+        Pixel coordinates (u, v); rows for points with z ≤ 0 (behind the camera) are NaN, except
+        for a fisheye lens, which images every direction up to its field limit (beyond it: a
+        ValueError naming the limit).
 
     Notes
     -----
@@ -369,6 +545,14 @@ def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None 
     pts = _as_points("points_cam", points_cam, 3)
     if not isinstance(intrinsics, Intrinsics):
         raise TypeError("intrinsics must be an Intrinsics")
+    d = _check_distortion(distortion)
+    if isinstance(d, KannalaBrandt):
+        rho = np.hypot(pts[:, 0], pts[:, 1])
+        theta = np.arctan2(rho, pts[:, 2])
+        _check_field(theta, d)
+        safe = np.where(rho > 0, rho, 1.0)
+        scale = np.where(rho > 0, d.theta_d(theta) / safe, 0.0)
+        return intrinsics.to_pixels(pts[:, :2] * scale[:, None])
     z = pts[:, 2]
     front = z > 0
     xy = np.full((len(pts), 2), np.nan)
@@ -392,11 +576,15 @@ def backproject(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None =
     Returns
     -------
     ndarray, shape (N, 3)
-        Rays in the camera frame with z = 1 (the paper's normalised image coordinates, §3.2.1).
+        Rays in the camera frame with z = 1 (the paper's normalised image coordinates, §3.2.1);
+        for a fisheye lens, unit rays (a wide lens sees directions with z ≤ 0).
     """
     if not isinstance(intrinsics, Intrinsics):
         raise TypeError("intrinsics must be an Intrinsics")
-    xy = undistort(intrinsics.to_normalised(uv_px), distortion)
+    d = _check_distortion(distortion)
+    if isinstance(d, KannalaBrandt):
+        return _fisheye_undistort(intrinsics.to_normalised(uv_px), d)
+    xy = undistort(intrinsics.to_normalised(uv_px), d)
     return np.column_stack((xy, np.ones(len(xy))))
 
 

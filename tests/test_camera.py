@@ -156,3 +156,81 @@ def test_wrong_shapes_raise(bad):
         project(bad, CAM)
     with pytest.raises(ValueError, match="xy_norm"):
         distort(np.zeros((3, 3)), DIST)
+
+
+# --- Kannala–Brandt fisheye ---------------------------------------------------------------------
+from gimbal_lab.camera import KannalaBrandt, UndistortionError, backproject, distort, undistort  # noqa: E402
+
+FISHEYE = KannalaBrandt(k1=-0.013, k2=-0.0053, k3=0.0014, k4=-0.0002)  # a stated mild fisheye (not a calibration)
+FISH_K = Intrinsics(width=640, height=480, fx=204.0, fy=204.0, cx=319.5, cy=239.5)
+
+
+def _cv_K(K):
+    return np.array([[K.fx, 0.0, K.cx], [0.0, K.fy, K.cy], [0.0, 0.0, 1.0]])
+
+
+def _directions(max_angle_rad, n, seed=0):
+    rng = np.random.default_rng(seed)
+    theta = rng.uniform(0.0, max_angle_rad, n)
+    phi = rng.uniform(-np.pi, np.pi, n)
+    return np.column_stack((np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta))) * rng.uniform(0.5, 9.0, (n, 1))
+
+
+def test_fisheye_project_matches_cv2_fisheye_over_the_front_hemisphere():
+    """cv2.fisheye.projectPoints is the oracle up to 89° off axis: agreement within 1e-6 px."""
+    pts = _directions(np.radians(89.0), 3000)
+    ours = project(pts, FISH_K, FISHEYE)
+    theirs, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), _cv_K(FISH_K),
+                                          FISHEYE.coefficients)
+    assert np.abs(ours - theirs.reshape(-1, 2)).max() < 1e-6  # measured ~1e-10 px
+
+
+def test_fisheye_undistort_matches_cv2_fisheye_undistort_points():
+    pts = _directions(np.radians(85.0), 2000, seed=1)
+    uv = project(pts, FISH_K, FISHEYE)
+    theirs = cv2.fisheye.undistortPoints(uv.reshape(-1, 1, 2), _cv_K(FISH_K), FISHEYE.coefficients).reshape(-1, 2)
+    ours = undistort(FISH_K.to_normalised(uv), FISHEYE)
+    # OpenCV iterates to its own tolerance; compare in pixels of the pinhole with the same f
+    assert np.abs(ours - theirs).max() * FISH_K.fx < 1e-6
+    assert np.abs(ours - pts[:, :2] / pts[:, 2:]).max() < 1e-9  # and the analytic truth
+
+
+def test_fisheye_beyond_ninety_degrees_round_trips_through_unit_rays():
+    """A 185° lens: rays up to 92.5° off axis project and back-project to themselves (1e-9)."""
+    lens, f = KannalaBrandt.equidistant_for_fov(640, np.radians(185.0))
+    K = Intrinsics(width=640, height=480, fx=f, fy=f, cx=319.5, cy=239.5)
+    dirs = _directions(np.radians(92.5), 2000, seed=2)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    uv = project(dirs, K, lens)
+    assert np.isfinite(uv).all()
+    # equidistant: the image radius is f·θ exactly (hand oracle)
+    theta = np.arctan2(np.hypot(dirs[:, 0], dirs[:, 1]), dirs[:, 2])
+    assert np.abs(np.hypot(uv[:, 0] - 319.5, uv[:, 1] - 239.5) - f * theta).max() < 1e-9
+    rays = backproject(uv, K, lens)
+    assert np.abs(np.linalg.norm(rays, axis=1) - 1).max() < 1e-12
+    assert np.abs(rays - dirs).max() < 1e-9
+    # the half width is reached at half the field: 320 px at 92.5°
+    assert f * np.radians(92.5) == pytest.approx(320.0, rel=1e-12)
+
+
+@given(st.floats(0.0, 1.5), st.floats(-np.pi, np.pi))
+@settings(max_examples=300, deadline=None)
+def test_fisheye_distort_undistort_round_trip(theta, phi):
+    x, y = np.tan(theta) * np.cos(phi), np.tan(theta) * np.sin(phi)
+    back = undistort(distort([x, y], FISHEYE), FISHEYE)[0]
+    assert np.hypot(back[0] - x, back[1] - y) <= 1e-9 * max(1.0, np.hypot(x, y))
+
+
+def test_fisheye_errors_name_the_field_limit():
+    lens = KannalaBrandt(max_field_rad=np.radians(100.0))
+    with pytest.raises(ValueError, match="field limit 100.00°"):
+        project([[0.0, 1.0, -0.5]], FISH_K, lens)  # 116.6° off axis
+    with pytest.raises(UndistortionError, match="image circle"):
+        backproject([[319.5 + 204.0 * 1.9, 239.5]], FISH_K, lens)  # radius 1.9 > 100° = 1.745
+    with pytest.raises(UndistortionError, match="90°"):
+        undistort([[1.7, 0.0]], lens)  # 97° has no pinhole coordinates
+    with pytest.raises(ValueError, match="stops rising"):
+        KannalaBrandt(k1=-0.3, max_field_rad=np.radians(150))
+    assert KannalaBrandt(k1=-0.3).max_field_rad == pytest.approx(np.sqrt(1 / 0.9), rel=1e-12)  # 1 − 0.9θ² = 0
+    with pytest.raises(TypeError, match="KannalaBrandt"):
+        project([[0, 0, 1.0]], FISH_K, "fisheye")
