@@ -681,8 +681,9 @@ def load_calibration(path) -> Calibration:
         text = "%YAML:1.0\n" + text  # ROS files carry no directive; FileStorage wants one
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as exc:
-        raise ValueError(f"{str(path)!r} is not a readable YAML/XML calibration: {exc.err}") from None
+    except (cv2.error, SystemError) as exc:  # the binding raises SystemError on some parse errors
+        reason = exc.err if isinstance(exc, cv2.error) else "parse error"
+        raise ValueError(f"{str(path)!r} is not a readable YAML/XML calibration: {reason}") from None
     try:
         width, height = fs.getNode("image_width"), fs.getNode("image_height")
         K = _seq(fs.getNode("camera_matrix"))
