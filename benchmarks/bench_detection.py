@@ -3,7 +3,7 @@
 Run: ``python benchmarks/bench_detection.py [--repeats N]``. Frames come from the scene renderer
 (sphere and ArUco targets at 3 m, pinhole and with the study's distortion). Each line prints the
 median time per frame, frames per second, and the ratio wrapper / bare OpenCV measured in the
-same run. Targets (DESIGN.md): sphere ≥ 1000 frames/s, ArUco ≥ 300 frames/s.
+same run. Targets (docs/design.md): sphere ≥ 1000 frames/s, ArUco ≥ 300 frames/s.
 """
 
 from __future__ import annotations

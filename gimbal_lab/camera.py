@@ -181,7 +181,7 @@ class BrownConrady:
 
     @classmethod
     def default(cls) -> "BrownConrady":
-        """The study's distorted camera (DESIGN.md): mild barrel with a small tangential term."""
+        """The study's distorted camera (docs/design.md): mild barrel with a small tangential term."""
         return cls(k1=-0.25, k2=0.12, p1=-0.00028, p2=-0.00005, k3=0.0)
 
     @classmethod

@@ -52,8 +52,12 @@ Paper §4.1 and Figs. 9–10: a red sphere and an ArUco marker moving in front o
 
 from __future__ import annotations
 
+import contextlib
 import ctypes.util
+import faulthandler
 import os
+import sys
+import threading
 
 import cv2
 import numpy as np
@@ -86,7 +90,7 @@ __all__ = [
     "ARUCO_DICTIONARY",
 ]
 
-#: The study's ArUco dictionary (paper §3.2.2 / DESIGN.md): 4 × 4 bits, 50 ids.
+#: The study's ArUco dictionary (paper §3.2.2 / docs/design.md): 4 × 4 bits, 50 ids.
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_50
 
 _BACKEND_HELP = (
@@ -95,7 +99,7 @@ _BACKEND_HELP = (
     "PYOPENGL_PLATFORM=osmesa set before Python imports OpenGL"
 )
 
-# The scene's fixed look (DESIGN.md, "background"): floats, matte materials.
+# The scene's fixed look (docs/design.md, the study table): floats, matte materials.
 _SKY_RGB = (0.55, 0.72, 0.92)
 _AMBIENT_RGB = (0.30, 0.30, 0.30)
 _SUN_INTENSITY = 0.75  # weight of the sun's cos θ term in the matte shader
@@ -243,6 +247,39 @@ def _import_pyrender():
             f"({exc}); {_BACKEND_HELP}"
         ) from exc
     return pyrender
+
+
+#: Seconds an OpenGL context may take to appear before the process gives up (creating one takes
+#: well under a second; a driver that blocks would otherwise idle until an outer timeout).
+GL_START_TIMEOUT_S = float(os.environ.get("GIMBAL_LAB_GL_TIMEOUT_S", "120"))
+
+
+@contextlib.contextmanager
+def _fail_if_stuck(what: str, timeout_s: float):
+    """Exit the process with a message and every thread's traceback if the block outlasts ``timeout_s``.
+
+    A GL driver call that never returns cannot be interrupted from Python; this watchdog thread
+    turns such a stall into a prompt, explained failure (exit status 70) instead of an idle
+    process.
+    """
+
+    def give_up():
+        sys.stderr.write(
+            f"gimbal-lab: {what} has not finished after {timeout_s:g} s; the OpenGL driver seems stuck. "
+            "Check the EGL/Mesa installation (docs in README, 'Rendering notes'), or raise "
+            "GIMBAL_LAB_GL_TIMEOUT_S on a very loaded machine. Tracebacks of every thread follow.\n"
+        )
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        os._exit(70)
+
+    timer = threading.Timer(timeout_s, give_up)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
 
 
 def _create_platform(width: int, height: int):
@@ -485,7 +522,7 @@ class SceneRenderer:
     target : {"sphere", "aruco"}
         The one target placed in the scene.
     sphere_radius_m : float
-        Sphere radius (> 0), metres. Default 0.10 (DESIGN.md).
+        Sphere radius (> 0), metres. Default 0.10 (docs/design.md).
     sphere_rgb : tuple of 3 floats
         Sphere base colour in [0, 1] (linear). Default saturated red.
     marker_length_m : float
@@ -565,8 +602,9 @@ class SceneRenderer:
         self._renderer = None
         self._build_scene()
         width, height = self.canvas_intrinsics.size
-        self._platform = _create_platform(width, height)
-        self._renderer = _make_renderer_class(self._pyrender)(width, height)
+        with _fail_if_stuck("creating the OpenGL context", GL_START_TIMEOUT_S):
+            self._platform = _create_platform(width, height)
+            self._renderer = _make_renderer_class(self._pyrender)(width, height)
         self._flags = self._pyrender.RenderFlags.OFFSCREEN if self._platform.supports_framebuffers() else 0
         self._linear_sum = None  # float32 accumulator for render_exposure, allocated on first use
         self._noise = None

@@ -78,12 +78,12 @@ class Trajectory:
 
     @classmethod
     def circular(cls, period_s: float = 2.0, radius_m: float = 1.0, centre_m=(3.0, 0.0, 2.0)) -> "Trajectory":
-        """The study's vertical circle (DESIGN.md)."""
+        """The study's vertical circle (docs/design.md)."""
         return cls("circular", period_s=period_s, centre_m=centre_m, radius_m=radius_m)
 
     @classmethod
     def diagonal(cls, period_s: float = 2.0, amplitude_m=(1.0, 0.8, 0.5), centre_m=(3.0, 0.0, 2.0)) -> "Trajectory":
-        """The study's straight round trip through the centre (DESIGN.md)."""
+        """The study's straight round trip through the centre (docs/design.md)."""
         return cls("diagonal", period_s=period_s, centre_m=centre_m, amplitude_m=amplitude_m)
 
     def _phase(self, t_s):

@@ -35,7 +35,7 @@ def random_points_in_view(n, seed=0):
 
 def test_default_camera_matches_design():
     assert CAM.width == 640 and CAM.height == 480
-    assert CAM.fx == pytest.approx(554.26, abs=0.005)  # DESIGN.md rounds to 0.01 px
+    assert CAM.fx == pytest.approx(554.26, abs=0.005)  # docs/design.md rounds to 0.01 px
     assert (CAM.cx, CAM.cy) == (319.5, 239.5)
     assert np.array_equal(CAM.K, [[CAM.fx, 0, 319.5], [0, CAM.fy, 239.5], [0, 0, 1]])
 

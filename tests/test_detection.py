@@ -34,7 +34,7 @@ from gimbal_lab.detection import (
 CAM = Intrinsics.default()
 DIST = BrownConrady.default()
 RADIUS_M = 0.10
-# DESIGN.md's figures are quoted for f = 800 px; a 1024 × 768 image keeps 20° off axis in view.
+# docs/design.md's figures are quoted for f = 800 px; a 1024 × 768 image keeps 20° off axis in view.
 CAM_800 = Intrinsics(800.0, 800.0, 511.5, 383.5, 1024, 768)
 
 # Home camera of the study: at world (0, 0, 2) looking along +x (OpenCV optical axes).
@@ -185,7 +185,7 @@ def test_circle_method_on_analytic_silhouettes_matches_the_closed_form(distance_
 
 
 def test_circle_method_bias_reproduces_design_figures():
-    # DESIGN.md: D = 3 m, r = 0.1 m, f = 800 px; "error" = |d_est − d_true| with d the range from
+    # docs/design.md: D = 3 m, r = 0.1 m, f = 800 px; "error" = |d_est − d_true| with d the range from
     # the optical centre to the sphere centre (the study's metric). Closed form: 1.667, 103.8, 182.5 mm.
     expected_mm = {0.0: 1.7, 15.0: 100.0, 20.0: 180.0}
     for theta_deg, figure_mm in expected_mm.items():

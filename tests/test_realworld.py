@@ -291,3 +291,11 @@ def test_command_line_errors_are_clear(tmp_path, monkeypatch, capsys, argv, mess
         cli.main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_sample_calibration_is_the_study_camera():
+    from pathlib import Path
+
+    sample = rw.load_calibration(Path(__file__).parents[1] / "data" / "calibration" / "sample_640x480.yml")
+    assert sample.intrinsics == CAM
+    np.testing.assert_array_equal(sample.distortion.coefficients, LENS.coefficients)

@@ -169,7 +169,7 @@ def test_point_on_optical_axis_lands_on_principal_point(cx, cy):
     On the axis the silhouette is an exact circle around the principal point; a 0.5 px
     convention slip (pixel centre vs edge) would move the centroid by 0.5 px. The binary mask's
     centroid of a 37 px-wide anti-aliased disc is good to a few hundredths of a pixel; 0.1 px
-    is the requirement (DESIGN.md).
+    is the requirement (docs/design.md).
     """
     K = Intrinsics(CAM.fx, CAM.fy, cx, cy, CAM.width, CAM.height)
     with SceneRenderer(K, target="sphere") as r:
@@ -452,3 +452,39 @@ def test_sensor_noise_is_seeded_and_clipped():
         add_sensor_noise(image, float("nan"), np.random.default_rng(1))
     with pytest.raises(TypeError, match="uint8"):
         add_sensor_noise(image.astype(float), 2.0, np.random.default_rng(1))
+
+
+def test_a_stuck_gl_call_fails_fast_with_a_message():
+    # A driver call that never returns is simulated by a sleep inside the watchdog's block: the
+    # process must exit promptly with status 70 and say what was stuck, not idle until a timeout.
+    import subprocess
+    import sys
+    import time
+
+    code = (
+        "import time\n"
+        "from gimbal_lab.scene import _fail_if_stuck\n"
+        "with _fail_if_stuck('creating the OpenGL context', 0.5):\n"
+        "    time.sleep(30)\n"
+    )
+    start = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 70
+    assert time.monotonic() - start < 25
+    assert "creating the OpenGL context has not finished after 0.5 s" in done.stderr
+    assert "GIMBAL_LAB_GL_TIMEOUT_S" in done.stderr
+    assert "time.sleep" in done.stderr or "line 4" in done.stderr  # the stuck thread's traceback
+
+
+def test_the_watchdog_stays_quiet_when_the_block_finishes():
+    import subprocess
+    import sys
+
+    code = (
+        "from gimbal_lab.scene import _fail_if_stuck\n"
+        "with _fail_if_stuck('x', 0.5):\n"
+        "    pass\n"
+        "import time; time.sleep(1.0); print('alive')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "alive" and "stuck" not in done.stderr

@@ -226,37 +226,50 @@ def plot_radial_displacement(intrinsics: Intrinsics, lenses: dict, ax=None, n_di
     return ax
 
 
-def distortion_explorer(intrinsics: Intrinsics, k1: float = -0.25, k2: float = 0.12, k_range: float = 0.5):
+def distortion_explorer(intrinsics: Intrinsics, lens: BrownConrady | None = None, k_range: float = 0.5):
     """Interactive k1/k2 sliders redrawing the distorted grid and displacement field (ipywidgets).
+
+    The sliders move k1 and k2 only; the lens's other coefficients (p1, p2, k3) are held at the
+    values of ``lens``, and the figure's title states them, so the starting picture is the
+    static figure of the same lens.
 
     Parameters
     ----------
     intrinsics : Intrinsics
-    k1, k2 : float
-        Initial slider values.
+    lens : BrownConrady, optional
+        Starting lens (default: the study's, ``BrownConrady.default()``).
     k_range : float
-        Sliders span [−k_range, k_range].
+        Sliders span [−k_range, k_range] (> 0).
 
     Returns
     -------
     ipywidgets.interactive
         Display it in a notebook; in a headless run it renders once with the initial values.
     """
+    import dataclasses
+
     import ipywidgets
     import matplotlib.pyplot as plt
     from IPython.display import display
 
+    lens = BrownConrady.default() if lens is None else lens
+    if not isinstance(lens, BrownConrady):
+        raise TypeError(f"lens must be a BrownConrady, got {type(lens).__name__}")
+    if not (np.isfinite(k_range) and k_range > 0):
+        raise ValueError(f"k_range must be finite and > 0, got {k_range!r}")
+
     def draw(k1, k2):
+        shown = dataclasses.replace(lens, k1=k1, k2=k2)
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), layout="constrained")
-        lens = BrownConrady(k1=k1, k2=k2)
-        plot_distorted_grid(intrinsics, lens, ax=axes[0])
-        plot_displacement_field(intrinsics, lens, ax=axes[1])
+        plot_distorted_grid(intrinsics, shown, ax=axes[0])
+        plot_displacement_field(intrinsics, shown, ax=axes[1])
+        fig.suptitle(f"k1 = {k1:.3f}, k2 = {k2:.3f}; held: p1 = {lens.p1:g}, p2 = {lens.p2:g}, k3 = {lens.k3:g}")
         display(fig)
         plt.close(fig)
 
     step = k_range / 100
     return ipywidgets.interactive(
         draw,
-        k1=ipywidgets.FloatSlider(value=k1, min=-k_range, max=k_range, step=step, readout_format=".3f"),
-        k2=ipywidgets.FloatSlider(value=k2, min=-k_range, max=k_range, step=step, readout_format=".3f"),
+        k1=ipywidgets.FloatSlider(value=lens.k1, min=-k_range, max=k_range, step=step, readout_format=".3f"),
+        k2=ipywidgets.FloatSlider(value=lens.k2, min=-k_range, max=k_range, step=step, readout_format=".3f"),
     )
