@@ -279,18 +279,20 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
     RunInterrupted
         On Ctrl-C, after stopping the workers; every run finished so far is in the store.
     """
+    if isinstance(configs, (TrackingConfig, str, bytes)) or not hasattr(configs, "__iter__"):
+        raise TypeError(f"configs must be a sequence of TrackingConfig objects, got {type(configs).__name__}")
     configs = list(configs)
     for c in configs:
         if not isinstance(c, TrackingConfig):
             raise TypeError(f"configs must hold TrackingConfig objects, got {type(c).__name__}")
-    if store is not None and not isinstance(store, ResultsStore):
-        store = ResultsStore(store)
     if executor is not None and not isinstance(executor, Executor):
         raise TypeError(f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}")
     if jobs is None:
         jobs = os.cpu_count() or 1
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+    if store is not None and not isinstance(store, ResultsStore):
+        store = ResultsStore(store)
 
     unique: dict[TrackingConfig, TrackingResult | None] = dict.fromkeys(configs)
     for c in unique:
@@ -308,9 +310,9 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
 
     def finish(config, result):
         nonlocal done
-        unique[config] = result
         if store is not None:
             store.save(result)
+        unique[config] = result  # only now: a run counts as kept once it is stored
         done += 1
         seconds = result.timing.get("total_s", float("nan"))
         log.info("%s seed %d: %d frames in %.1f s", config.label, config.seed, len(result.frames), seconds)
@@ -319,6 +321,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
             bar.set_postfix_str(f"{done}/{len(todo)} runs")
 
     pool = None
+    futures: dict = {}
     try:
         if executor is None and (jobs == 1 or len(todo) <= 1):
             for c in todo:
@@ -342,6 +345,15 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
             bar.close()
         kept = sum(r is not None for r in unique.values())
         raise RunInterrupted(kept, len(unique), store) from None
+    except BaseException:
+        # a run failed: stop the rest at once instead of computing runs nobody will see
+        if pool is not None and executor is None:
+            _stop_pool(pool)
+            pool = None
+        else:
+            for fut in futures:
+                fut.cancel()
+        raise
     finally:
         if pool is not None and executor is None:
             pool.shutdown(wait=True)
