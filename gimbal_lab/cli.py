@@ -11,7 +11,7 @@ import argparse
 import sys
 
 #: Modules that add sub-commands; each has ``add_parsers(subparsers)`` and sets ``func``.
-_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld")
+_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld", "gimbal_lab.show")
 
 
 def build_parser() -> argparse.ArgumentParser:

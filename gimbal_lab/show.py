@@ -1,0 +1,290 @@
+"""Watch a run: the camera's frames of a finished run, re-rendered, with what the tracker saw.
+
+A run's frame table keeps, per frame, the joint angles and rates, the instants and the detection;
+the config keeps the seed. That is enough to render every frame again exactly as the run saw it
+(same poses, same sensor noise drawn from the same seed in the same order) and draw on it:
+
+- the image centre (grey cross): where the active loop wants the target;
+- the true target centre projected through the lens (green ring), and its recent path (the
+  offset trace, yellow);
+- the detected centre (magenta x) and the frame's distance error.
+
+:func:`side_by_side` puts the passive and active runs of one cell next to each other at the same
+instants; :func:`write_clip` writes MP4 (OpenCV's ``mp4v``) or GIF (Pillow, already installed
+with matplotlib), so no system ffmpeg is needed. ``gimbal-lab show`` does all of it.
+
+Notes
+-----
+Paper §4.1 (Fig. 5, the camera's view of the scene during tracking).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .simulation import TrackingConfig, TrackingResult, make_renderer, world_T_base
+from .trajectories import target_pose
+
+__all__ = ["replay", "annotate", "side_by_side", "write_clip", "show"]
+
+_GREY, _GREEN, _YELLOW, _MAGENTA = (170, 170, 170), (40, 220, 60), (255, 220, 0), (255, 0, 255)
+#: Frames of true-centre history drawn as the offset trace.
+TRACE_FRAMES = 30
+
+
+def _check_result(result) -> TrackingResult:
+    if not isinstance(result, TrackingResult):
+        raise TypeError(f"result must be a TrackingResult (from gimbal_lab.runner.run or simulate), "
+                        f"got {type(result).__name__}")
+    if len(result.frames) == 0:
+        raise ValueError(f"{result.config.label}: the run has no frames to show")
+    return result
+
+
+def replay(result: TrackingResult, renderer=None, every: int = 1):
+    """Yield ``(row, image)`` for the run's frames, rendered as the run rendered them.
+
+    Parameters
+    ----------
+    result : TrackingResult
+    renderer : gimbal_lab.scene.SceneRenderer, optional
+        One built for the run's camera, lens and target (built and closed here when omitted).
+    every : int
+        Yield every ``every``-th frame (the noise of the skipped ones is still drawn, so the
+        frames shown are the run's own).
+
+    Notes
+    -----
+    The images are bit-identical to the run's for sharp frames (``exposure_s == 0``); with motion
+    blur the joint angles at the exposure start are recovered from the mid-exposure angles and
+    rates, to the last bit of a float.
+    """
+    from .kinematics import GimbalKinematics
+    from .scene import add_sensor_noise
+
+    result = _check_result(result)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every must be an integer >= 1, got {every!r}")
+    config = result.config
+    own = renderer is None
+    if own:
+        renderer = make_renderer(config)
+    try:
+        kin = GimbalKinematics.default()
+        T_world_base = world_T_base(kin)
+        rng = np.random.default_rng(config.seed)
+        half = 0.5 * config.exposure_s
+        q_cols = ["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]
+        qd_cols = ["qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s"]
+        for i, row in enumerate(result.frames.itertuples(index=False)):
+            q = np.array([getattr(row, c) for c in q_cols])
+            qd = np.array([getattr(row, c) for c in qd_cols])
+            if i % every:
+                # keep the noise stream in step with the run without rendering
+                add_sensor_noise(np.zeros((config.height, config.width, 3), np.uint8), config.noise_std, rng)
+                continue
+            t_s = row.t_s
+            if config.exposure_s > 0 and config.n_subframes > 1:
+                q0 = q - qd * half
+
+                def pose_fn(t, q0=q0, qd=qd, t_k=t_s):
+                    T_cam = T_world_base @ kin.forward(q0 + qd * (t - t_k), check_limits=False)
+                    return T_cam, target_pose(config.path, t + config.start_phase_s)
+
+                image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
+            else:
+                T_cam = T_world_base @ kin.forward(q, check_limits=False)
+                image = renderer.render(T_cam, target_pose(config.path, row.t_mid_s + config.start_phase_s))
+            yield row, add_sensor_noise(image, config.noise_std, rng)
+    finally:
+        if own:
+            renderer.close()
+
+
+def _point(u, v):
+    return None if not (math.isfinite(u) and math.isfinite(v)) else (int(round(u)), int(round(v)))
+
+
+def annotate(image: np.ndarray, row, config: TrackingConfig, trace=(), title: str | None = None) -> np.ndarray:
+    """A copy of ``image`` with the image centre, true centre, its trace, the detection and a caption.
+
+    ``row`` is the frame's row of the run's table (a namedtuple or a pandas Series); ``trace`` the
+    true centre's recent pixel positions, oldest first.
+    """
+    out = np.ascontiguousarray(image.copy())
+    K = config.intrinsics
+    h, w = out.shape[:2]
+    cv2.drawMarker(out, (int(round(K.cx)), int(round(K.cy))), _GREY, cv2.MARKER_CROSS, 24, 1, cv2.LINE_AA)
+    pts = [p for p in (_point(u, v) for u, v in trace) if p is not None]
+    if len(pts) > 1:
+        cv2.polylines(out, [np.array(pts, np.int32)], False, _YELLOW, 1, cv2.LINE_AA)
+    true = _point(row.true_u_px, row.true_v_px)
+    if true is not None:
+        cv2.circle(out, true, 7, _GREEN, 2, cv2.LINE_AA)
+    found = _point(row.u_px, row.v_px)
+    if found is not None:
+        cv2.drawMarker(out, found, _MAGENTA, cv2.MARKER_TILTED_CROSS, 14, 2, cv2.LINE_AA)
+    error = f"|error| {1000 * row.abs_error_m:5.1f} mm" if row.detected else "not detected"
+    lines = [title or f"{config.mode} {config.target}",
+             f"t {row.t_mid_s:5.2f} s  offset {row.true_offset_px:5.1f} px  {error}"]
+    scale = max(0.4, h / 960)
+    y = int(22 * scale / 0.5)
+    for text in lines:
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+        cv2.rectangle(out, (4, y - th - 4), (10 + tw, y + 5), (0, 0, 0), -1)
+        cv2.putText(out, text, (7, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
+        y += th + 12
+    return out
+
+
+def _annotated(result, renderer, every, title):
+    trace = []
+    for row, image in replay(result, renderer=renderer, every=every):
+        trace = (trace + [(row.true_u_px, row.true_v_px)])[-max(1, TRACE_FRAMES // every):]
+        yield annotate(image, row, result.config, trace, title)
+
+
+def side_by_side(passive: TrackingResult, active: TrackingResult, every: int = 1):
+    """Yield frames with the passive run on the left and the active run on the right, same instants.
+
+    Both runs must share the target, lens, frame rate and run length (they are the two modes of
+    one cell); one renderer serves both.
+    """
+    for r in (passive, active):
+        _check_result(r)
+    a, b = passive.config, active.config
+    same = ("target", "width", "height", "fps", "n_frames", "distortion", "trajectory", "period_s")
+    differ = [f for f in same if getattr(a, f) != getattr(b, f)]
+    if differ:
+        raise ValueError(f"the two runs must differ only in mode; they differ in {', '.join(differ)}")
+    renderer = make_renderer(a)
+    try:
+        name = lambda c: f"{c.mode.upper()}  {c.target}, {c.distortion_label}, {c.trajectory}, seed {c.seed}"
+        left = _annotated(passive, renderer, every, name(a))
+        right = _annotated(active, renderer, every, name(b))
+        for l_img, r_img in zip(left, right):
+            gap = np.full((l_img.shape[0], 4, 3), 255, np.uint8)
+            yield np.hstack([l_img, gap, r_img])
+    finally:
+        renderer.close()
+
+
+def gif_frame_ms(fps: float) -> int:
+    """A GIF frame's duration for ``fps``: GIF counts in hundredths of a second (15 fps → 70 ms)."""
+    return 10 * max(2, int(round(100.0 / fps)))  # players stretch frames under 20 ms to 100 ms
+
+
+def write_clip(path, frames, fps: float, gif_scale: float = 0.5) -> Path:
+    """Write RGB ``frames`` to ``path`` (.mp4 or .gif) through a temporary file (nothing half-written
+    is left on an error or Ctrl-C). GIF frames are scaled by ``gif_scale`` to keep the file small
+    and last :func:`gif_frame_ms` each.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise ValueError(f"the clip must be a .mp4 or .gif file, got {str(path)!r}")
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a number > 0, got {fps!r}")
+    if not (isinstance(gif_scale, (int, float)) and 0 < gif_scale <= 1):
+        raise ValueError(f"gif_scale must be in (0, 1], got {gif_scale!r}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{suffix}")
+    try:
+        if suffix == ".mp4":
+            from .realworld import write_video
+
+            write_video(tmp, frames, fps=fps)
+        else:
+            from PIL import Image
+
+            images = []
+            for rgb in frames:
+                small = cv2.resize(rgb, None, fx=gif_scale, fy=gif_scale, interpolation=cv2.INTER_AREA)
+                # 64 colours without dithering: sensor noise falls into flat colour bins, which
+                # keeps the LZW-coded file several times smaller than a dithered palette
+                images.append(Image.fromarray(small).quantize(colors=64, dither=Image.Dither.NONE))
+            if not images:
+                raise ValueError("no frames to write")
+            images[0].save(tmp, save_all=True, append_images=images[1:], duration=gif_frame_ms(fps), loop=0)
+        if not tmp.exists():
+            raise ValueError("no frames to write")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def show(target: str = "sphere", distortion: str = "default", trajectory: str = "circular", seed: int = 0,
+         out="run.mp4", *, study=None, store=None, every: int = 1, jobs: int | None = None,
+         progress: bool = True) -> Path:
+    """Run (or reuse from ``store``) the passive and active runs of one paper-study cell and
+    replicate, and write them side by side to ``out``. Returns the clip's path."""
+    from .runner import run
+    from .studies.paper import PaperStudy, grid
+
+    study = study or PaperStudy()
+    if seed not in study.seeds:
+        raise ValueError(f"seed must be one of the study's replicates {study.seeds[0]}..{study.seeds[-1]}, got {seed!r}")
+    wanted = {"distortion": {"none": "none", "default": "default"}.get(distortion), "trajectory": trajectory}
+    cells = [c for c in grid(study, targets=(target,)) if c.seed == seed and c.trajectory == trajectory
+             and c.distortion == wanted["distortion"]]
+    if len(cells) != 2:
+        raise ValueError(f"no study cell for distortion={distortion!r}, trajectory={trajectory!r} "
+                         "(distortion: none or default; trajectory: circular or diagonal)")
+    passive, active = sorted(cells, key=lambda c: c.mode != "passive")
+    r_passive, r_active = run([passive, active], store=store, jobs=jobs, progress=progress, desc="runs to show")
+    frames = side_by_side(r_passive, r_active, every=every)
+    if progress:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, total=math.ceil(passive.n_frames / every), desc="clip", unit="frame")
+    return write_clip(out, frames, fps=passive.fps / every)
+
+
+# ----------------------------------------------------------------------------------------------
+# command line
+# ----------------------------------------------------------------------------------------------
+def add_parsers(sub) -> None:
+    p = sub.add_parser("show", help="write a clip of one cell's passive and active runs side by side",
+                       description="Render the camera's frames of one paper-study cell and replicate, passive "
+                                   "left and active right, with the image centre (grey), the true centre and "
+                                   "its trace (green, yellow) and the detection (magenta), as MP4 or GIF.")
+    p.add_argument("--target", choices=("sphere", "aruco"), default="sphere")
+    p.add_argument("--distortion", choices=("none", "default"), default="default")
+    p.add_argument("--trajectory", choices=("circular", "diagonal"), default="circular")
+    p.add_argument("--seed", type=int, default=0, help="the replicate (default 0)")
+    p.add_argument("--config", help="a study TOML (default: the paper's, data/studies/paper.toml)")
+    p.add_argument("--store", help="results store to reuse runs from and keep them in (default: none)")
+    p.add_argument("--every", type=int, default=1, help="show every N-th frame (default 1)")
+    p.add_argument("--out", default="run.mp4", help="the clip, .mp4 or .gif (default run.mp4)")
+    p.set_defaults(func=_show_command, _parser=p)
+
+
+def _show_command(args, parser) -> int:
+    from .runner import RunInterrupted
+    from .studies.paper import PaperStudy
+
+    if args.every < 1:
+        parser.error(f"--every must be >= 1, got {args.every}")
+    if Path(args.out).suffix.lower() not in (".mp4", ".gif"):
+        parser.error(f"--out must end in .mp4 or .gif, got {args.out!r}")
+    try:
+        study = PaperStudy.from_toml(args.config) if args.config else PaperStudy()
+        path = show(args.target, args.distortion, args.trajectory, args.seed, args.out, study=study,
+                    store=args.store, every=args.every)
+    except (ValueError, FileNotFoundError) as exc:
+        parser.error(str(exc))
+    except RunInterrupted as exc:
+        print(f"\n{exc}")
+        return 130
+    except KeyboardInterrupt:
+        print("\ninterrupted: no clip written")
+        return 130
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0

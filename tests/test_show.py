@@ -1,0 +1,158 @@
+"""Watching a run: the replayed frames are the run's own (the run's detector finds exactly the
+pixel centres the run recorded), overlays land where they should, clips are readable MP4/GIF with
+the right frame count, nothing half-written survives an interruption, and bad input is named.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from gimbal_lab.show import annotate, replay, side_by_side, write_clip
+from gimbal_lab.simulation import TrackingConfig, _Estimator, simulate
+
+
+def cfg(**changes) -> TrackingConfig:
+    base = dict(target="sphere", mode="active", distortion="default", revolutions=0.25, seed=3, start_phase_s=0.4,
+                width=320, height=240)
+    return TrackingConfig(**{**base, **changes})
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {mode: simulate(cfg(mode=mode)) for mode in ("passive", "active")}
+
+
+@pytest.mark.parametrize("changes", [{}, {"target": "aruco", "distortion": "none", "noise_std": 3.0}],
+                         ids=["sphere-distorted", "aruco"])
+def test_replayed_frames_are_the_runs_own(changes):
+    """Same poses, same noise stream: the run's detector gives bit-identical pixel centres."""
+    config = cfg(**changes)
+    result = simulate(config)
+    estimate = _Estimator(config)
+    rows = 0
+    for row, image in replay(result):
+        uv, _, _ = estimate(image)
+        if row.detected:
+            assert uv is not None and np.array_equal(uv, [row.u_px, row.v_px])
+        else:
+            assert uv is None
+        rows += 1
+    assert rows == len(result.frames) == config.n_frames
+
+
+def test_skipping_frames_keeps_the_noise_in_step(runs):
+    result = runs["active"]
+    every_frame = [img for _, img in replay(result)]
+    every_third = [(row.frame, img) for row, img in replay(result, every=3)]
+    assert [k for k, _ in every_third] == list(range(0, len(every_frame), 3))
+    for k, img in every_third:
+        assert np.array_equal(img, every_frame[k])
+
+
+def test_blurred_frames_replay_within_a_hundredth_of_a_pixel():
+    config = cfg(exposure_s=1 / 60, n_subframes=4, revolutions=0.15)
+    result = simulate(config)
+    estimate = _Estimator(config)
+    assert result.frames.detected.sum() >= 5
+    for row, image in replay(result):
+        uv, _, _ = estimate(image)
+        if row.detected:
+            np.testing.assert_allclose(uv, [row.u_px, row.v_px], atol=0.01)
+        else:
+            assert uv is None
+
+
+def test_overlays_land_on_the_true_centre_and_the_image_centre(runs):
+    result = runs["passive"]
+    config = result.config
+    row, image = next(replay(result))
+    out = annotate(image, row, config, trace=[(row.true_u_px - 20, row.true_v_px), (row.true_u_px, row.true_v_px)])
+    assert out.shape == image.shape and out is not image
+    u, v = round(row.true_u_px), round(row.true_v_px)
+    ring = out[v - 7, u]  # the green ring's top
+    assert ring[1] > 150 and ring[0] < 120 and ring[2] < 120
+    cx, cy = round(config.intrinsics.cx), round(config.intrinsics.cy)
+    assert np.all(np.abs(out[cy, cx + 8].astype(int) - 170) < 40)  # grey cross arm
+    # far from every overlay the frame is untouched
+    assert np.array_equal(out[-5:, -5:], image[-5:, -5:])
+
+
+def test_side_by_side_puts_passive_left_at_the_same_instants(runs):
+    frames = list(side_by_side(runs["passive"], runs["active"], every=2))
+    w, h = runs["passive"].config.width, runs["passive"].config.height
+    assert len(frames) == len(range(0, runs["passive"].config.n_frames, 2))
+    assert frames[0].shape == (h, 2 * w + 4, 3)
+    assert np.all(frames[0][:, w:w + 4] == 255)
+
+
+def test_side_by_side_refuses_runs_of_different_cells(runs):
+    other = simulate(cfg(mode="passive", target="aruco", revolutions=0.1))
+    with pytest.raises(ValueError, match="differ only in mode; they differ in target"):
+        next(side_by_side(other, runs["active"]))
+
+
+def test_clips_are_readable_with_every_frame(runs, tmp_path):
+    frames = list(side_by_side(runs["passive"], runs["active"]))
+    mp4 = write_clip(tmp_path / "a" / "clip.mp4", iter(frames), fps=30)
+    cap = cv2.VideoCapture(str(mp4))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(frames)
+    assert (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))) == frames[0].shape[1::-1]
+    ok, first = cap.read()
+    cap.release()
+    assert ok and np.abs(first[..., ::-1].astype(int) - frames[0]).mean() < 8  # lossy, but the same picture
+
+    from PIL import Image
+
+    gif = write_clip(tmp_path / "clip.gif", iter(frames), fps=15, gif_scale=0.5)
+    with Image.open(gif) as im:
+        assert im.n_frames == len(frames) and im.size == (frames[0].shape[1] // 2, frames[0].shape[0] // 2)
+        assert im.info["duration"] == 70  # GIF counts hundredths of a second
+    assert not list(tmp_path.rglob(".*partial*"))
+
+
+def test_an_interrupted_clip_leaves_nothing(runs, tmp_path):
+    def frames():
+        yield from side_by_side(runs["passive"], runs["active"], every=4)
+        raise KeyboardInterrupt
+
+    old = tmp_path / "clip.mp4"
+    old.write_bytes(b"the previous clip")
+    for name in ("clip.mp4", "clip.gif"):
+        with pytest.raises(KeyboardInterrupt):
+            write_clip(tmp_path / name, frames(), fps=30)
+    assert old.read_bytes() == b"the previous clip"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda r: write_clip("x.avi", [], fps=30), ValueError, r"\.mp4 or \.gif"),
+    (lambda r: write_clip("x.mp4", [], fps=0), ValueError, "fps must be a number > 0"),
+    (lambda r: write_clip("x.gif", [], fps=10, gif_scale=2), ValueError, "gif_scale must be in"),
+    (lambda r: next(replay(r, every=0)), ValueError, "every must be an integer >= 1"),
+    (lambda r: next(replay(r.frames)), TypeError, "result must be a TrackingResult"),
+])
+def test_bad_input_is_named(runs, call, error, message):
+    with pytest.raises(error, match=message):
+        call(runs["active"])
+
+
+def test_show_command_writes_a_clip_and_names_bad_arguments(tmp_path):
+    toml = tmp_path / "tiny.toml"
+    toml.write_text("[paper]\nreplicates = 2\nperiod_s = 0.3\n")  # 2 revolutions of 9 frames
+    cmd = [sys.executable, "-m", "gimbal_lab.cli", "show"]
+    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--out", str(tmp_path / "c.gif")],
+                        capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr
+    assert "wrote" in ok.stdout and (tmp_path / "c.gif").stat().st_size > 0
+    for args, message in ((["--out", "c.avi"], "--out must end in .mp4 or .gif"),
+                          (["--every", "0"], "--every must be >= 1"),
+                          (["--config", str(toml), "--seed", "5"], "seed must be one of the study's replicates"),
+                          (["--config", str(tmp_path / "missing.toml")], "does not exist")):
+        bad = subprocess.run(cmd + args + (["--out", str(tmp_path / "x.mp4")] if "--out" not in args else []),
+                             capture_output=True, text=True, timeout=120)
+        assert bad.returncode == 2 and message in bad.stderr, bad.stderr
