@@ -952,26 +952,32 @@ class ArucoTracker:
         Rectify each frame before detection (then ``distortion`` must be None).
     threshold_windows_px : (int, int, int)
         (min, max, step) of the adaptive-threshold window sides, pixels ≥ 3, used at every
-        pyramid level. The default thresholds with 3- and 13-px windows. Measured: a 7-px
-        window alone missed a strongly foreshortened 16-px marker in a real photograph that the
-        3-px window reads, and (3, 7) missed a 20-px synthetic one that 13 px finds; OpenCV's
-        default (3, 23, 10) thresholds three times per frame for no further marker in either set.
+        pyramid level. The default thresholds with 3- and 13-px windows. Measured
+        (``benchmarks/bench_real_aruco.py``): a 7-px window alone missed a strongly
+        foreshortened 16-px marker in a real photograph that the 3-px window reads, and a 3-px
+        window alone loses 3 of the 5 real 290–650 px markers that (3, 13) finds; OpenCV's
+        default (3, 23, 10) thresholds three times per frame and, on 380 synthetic photos, finds
+        3 markers (16–40 px, borderline code reads) that (3, 13) misses and misses 1 it finds.
     pyramid_factor : int
         Each pyramid level shrinks the previous one this many times (1: no pyramid). A window
         of a few pixels loses markers whose edges are blurred over more than about half of it
-        (large, close markers, often out of focus: 3 of 5 real 290–650 px markers); on a level
-        shrunk 4×, the same window spans 28 full-resolution pixels and the blur shrinks with
-        the image. Level cost: 1/16 of the frame's.
+        (large, close, out-of-focus markers); on a level shrunk 4×, the same window spans 28
+        full-resolution pixels and the blur shrinks with the image. Measured: on the real
+        photographs every marker is found without it; on synthetic photos it adds one heavily
+        defocused 400-px marker (blur σ 4.5 px) of 60 over 300 px. Its cost depends on the
+        dictionary: about 0.6× the full frame's with DICT_4X4_50, about as much as the full
+        frame with DICT_6X6_250 on busy photos (small levels pass many tiny candidates, each
+        read against every code).
     min_level_side_px : int
         A level is only used while its longer side is at least this long (≥ 16 px).
 
     Notes
     -----
-    Recall and speed of these defaults against OpenCV's default detector, on synthetic photos
-    with known truth (print, uneven light, vignetting, defocus, noise, JPEG) and optionally on
-    a folder of the user's photographs: ``benchmarks/bench_detection.py``. Markers from about
-    15 px to most of the frame are found when the defocus blur is under about a tenth of the
-    marker's side.
+    Recall, corner error and speed of these defaults against OpenCV's default detector, on
+    synthetic photos with known truth (print, uneven light, vignetting, defocus, noise, JPEG)
+    and on a folder of real photographs: ``benchmarks/bench_real_aruco.py``. Markers from
+    about 25 px to most of the frame are found when the defocus blur is under about a tenth of
+    the marker's side; under 25 px, about 7 in 10 on the synthetic photos (as OpenCV's default).
     """
 
     def __init__(
