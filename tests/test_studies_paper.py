@@ -180,3 +180,25 @@ def test_the_shipped_study_config_is_the_study_default():
 
     shipped = Path(__file__).resolve().parents[1] / "data" / "studies" / "paper.toml"
     assert paper.PaperStudy.from_toml(shipped) == paper.PaperStudy()
+
+
+def test_write_clips_shows_each_targets_clip_cell(tmp_path):
+    """One MP4 per target, of the distorted circular cell's first replicate, passive | active."""
+    import cv2
+
+    from gimbal_lab.simulation import simulate
+
+    study = paper.PaperStudy(replicates=2, period_s=0.3)  # 2 revolutions of 9 frames
+    cell = [c for c in paper.grid(study) if (c.distortion_label, c.trajectory, c.seed) == (*paper.CLIP_CELL, 0)]
+    other = [c for c in paper.grid(study, targets=("sphere",)) if c.seed == 1][:1]  # not a clip's run
+    assert len(cell) == 4
+    results = [simulate(c) for c in cell + other]
+    written = paper.write_clips(tmp_path, results, study)
+    assert [p.name for p in written] == ["sphere.mp4", "aruco.mp4"]
+    for path in written:
+        cap = cv2.VideoCapture(str(path))
+        frames, width = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+        cap.release()
+        assert (frames, width) == (cell[0].n_frames, 2 * cell[0].width + 4)
+    # a target whose pair is missing gets no clip (e.g. a study run for one target)
+    assert paper.write_clips(tmp_path / "none", results[:1], study) == []

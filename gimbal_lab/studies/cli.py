@@ -32,6 +32,8 @@ def _add_run_options(p) -> None:
                    help="run on a Dask cluster, e.g. tcp://HOST:8786 (needs the [dask] extra)")
     p.add_argument("--no-cache", dest="cache", action="store_false",
                    help="recompute every run (the store is still written)")
+    p.add_argument("--no-clips", dest="clips", action="store_false",
+                   help="do not write the passive | active clips (DIR/STUDY/clips/*.mp4)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -93,7 +95,7 @@ def _run(args, parser) -> int:
           f"revolutions each) on {where}; finished runs are kept in {store_root}")
     try:
         report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, clips=args.clips)
     except RunInterrupted as exc:
         print(f"\nInterrupted: {exc.kept} of {exc.total} runs are finished and kept in {store_root}; "
               f"run the same command again to resume.", file=sys.stderr)

@@ -527,10 +527,39 @@ def write_report(folder, results, study: PaperStudy) -> list[Path]:
     return written
 
 
-def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, progress=True) -> dict:
+#: The cell each target's clip shows (the first replicate): the lens and the circle, where the
+#: passive camera sees the target wander furthest off-centre.
+CLIP_CELL = ("distorted", "circular")
+
+
+def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> list[Path]:
+    """Write ``folder/clips/<target>.mp4``: the :data:`CLIP_CELL` runs of the first replicate,
+    passive left and active right, as :func:`gimbal_lab.show.side_by_side` draws them."""
+    from ..show import side_by_side, write_clip
+
+    written = []
+    first = study.seeds[0]
+    for target in ("sphere", "aruco"):
+        pair = {r.config.mode: r for r in results
+                if (r.config.target, r.config.distortion_label, r.config.trajectory, r.config.seed)
+                == (target, *CLIP_CELL, first)}
+        if set(pair) != {"passive", "active"}:
+            continue
+        frames = side_by_side(pair["passive"], pair["active"])
+        if progress:
+            from tqdm.auto import tqdm
+
+            frames = tqdm(frames, total=pair["passive"].config.n_frames, desc=f"{target} clip", unit="frame")
+        written.append(write_clip(Path(folder) / "clips" / f"{target}.mp4", frames, fps=pair["passive"].config.fps))
+    return written
+
+
+def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, progress=True,
+              clips: bool = True) -> dict:
     """Run the grid (reusing ``store``) and write the report to ``out/paper`` atomically.
 
-    Returns a dict with the results, the tables and the paths written.
+    With ``clips``, also one MP4 per target of a cell's passive and active runs side by side
+    (:func:`write_clips`). Returns a dict with the results, the tables and the paths written.
     """
     from ..runner import run, staged_folder
 
@@ -538,6 +567,8 @@ def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, p
     results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc="paper study")
     with staged_folder(Path(out) / NAME) as tmp:
         written = write_report(tmp, results, study)
+        if clips:
+            written += write_clips(tmp, results, study, progress=progress)
     final = Path(out) / NAME
     return {"results": results, "folder": final,
             "written": [final / p.relative_to(tmp) for p in written]}
