@@ -46,7 +46,7 @@ def _check_result(result) -> TrackingResult:
     return result
 
 
-def replay(result: TrackingResult, renderer=None, every: int = 1):
+def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0, stop: int | None = None):
     """Yield ``(row, image)`` for the run's frames, rendered as the run rendered them.
 
     Parameters
@@ -57,6 +57,8 @@ def replay(result: TrackingResult, renderer=None, every: int = 1):
     every : int
         Yield every ``every``-th frame (the noise of the skipped ones is still drawn, so the
         frames shown are the run's own).
+    start, stop : int
+        Frames ``start, start + every, …`` before ``stop`` (default: to the end), as in ``range``.
 
     Notes
     -----
@@ -70,6 +72,11 @@ def replay(result: TrackingResult, renderer=None, every: int = 1):
     result = _check_result(result)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ValueError(f"every must be an integer >= 1, got {every!r}")
+    n = len(result.frames)
+    stop = n if stop is None else stop
+    for name, value in (("start", start), ("stop", stop)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= n:
+            raise ValueError(f"{name} must be an integer in [0, {n}] (the run's frames), got {value!r}")
     config = result.config
     own = renderer is None
     if own:
@@ -82,9 +89,11 @@ def replay(result: TrackingResult, renderer=None, every: int = 1):
         q_cols = ["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]
         qd_cols = ["qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s"]
         for i, row in enumerate(result.frames.itertuples(index=False)):
+            if i >= stop:
+                break
             q = np.array([getattr(row, c) for c in q_cols])
             qd = np.array([getattr(row, c) for c in qd_cols])
-            if i % every:
+            if i < start or (i - start) % every:
                 # keep the noise stream in step with the run without rendering
                 add_sensor_noise(np.zeros((config.height, config.width, 3), np.uint8), config.noise_std, rng)
                 continue

@@ -26,3 +26,50 @@ def test_distortion_explorer_starts_at_the_given_lens_and_keeps_its_other_coeffi
         camera_plots.distortion_explorer(Intrinsics.default(), "barrel")
     with pytest.raises(ValueError, match="k_range"):
         camera_plots.distortion_explorer(Intrinsics.default(), lens, k_range=0)
+
+
+@pytest.fixture(scope="module")
+def cell_runs():
+    from gimbal_lab.simulation import TrackingConfig, simulate
+
+    base = dict(target="sphere", distortion="default", revolutions=0.5, width=320, height=240, start_phase_s=0.3)
+    return [simulate(TrackingConfig(mode=m, seed=s, **base)) for s in (0, 1) for m in ("passive", "active")]
+
+
+def test_run_frame_shows_both_cameras_at_the_instant_and_the_error_trace(cell_runs):
+    import numpy as np
+
+    from gimbal_lab.plotting import study
+    from gimbal_lab.show import annotate, replay
+
+    passive, active = cell_runs[:2]
+    fig = study.plot_run_frame(passive, active, 7)
+    images = [ax.get_images()[0].get_array() for ax in fig.axes[:2]]
+    for result, shown in zip((passive, active), images):
+        row, image = list(replay(result))[7]
+        past = result.frames.iloc[:8]
+        want = annotate(image, row, result.config, zip(past["true_u_px"], past["true_v_px"]), title=result.config.mode.upper())
+        assert np.array_equal(np.asarray(shown), want)
+    trace = fig.axes[2]
+    marker = [line for line in trace.get_lines() if line.get_linestyle() == "--"]
+    assert len(marker) == 1 and marker[0].get_xdata()[0] == passive.frames["t_mid_s"].iloc[7]
+    np.testing.assert_allclose(trace.get_lines()[1].get_ydata(), 1000 * active.frames["abs_error_m"])
+    assert "frame 7" in fig.get_suptitle() and "revolution 1 of 1" in fig.get_suptitle()
+    with pytest.raises(ValueError, match=r"frame must be an integer in \[0, 29\]"):
+        study.plot_run_frame(passive, active, 30)
+
+
+def test_run_explorer_offers_every_paired_cell_and_redraws_on_change(cell_runs):
+    pytest.importorskip("ipywidgets")
+    from gimbal_lab.plotting import study
+
+    widget = study.run_explorer(cell_runs + cell_runs[:1], frame=3)  # a duplicate pair entry is harmless
+    cell, replicate, frame = widget.kwargs_widgets
+    assert list(cell.options) == ["distorted/circular"] and list(replicate.options) == [0, 1]
+    assert widget.result.startswith("sphere, distorted, circular, replicate 0: frame 3 ")
+    frame.value = 12
+    assert "frame 12 " in widget.result
+    replicate.value = 1
+    assert widget.result.startswith("sphere, distorted, circular, replicate 1: frame 12 ")
+    with pytest.raises(ValueError, match="no cell with both a passive and an active run"):
+        study.run_explorer(cell_runs[:1])

@@ -54,6 +54,15 @@ def test_skipping_frames_keeps_the_noise_in_step(runs):
         assert np.array_equal(img, every_frame[k])
 
 
+def test_one_frame_from_the_middle_is_the_runs_own(runs):
+    result = runs["passive"]
+    every_frame = [img for _, img in replay(result)]
+    for k in (0, 5, len(every_frame) - 1):
+        [(row, img)] = list(replay(result, start=k, stop=k + 1))
+        assert row.frame == k and np.array_equal(img, every_frame[k])
+    assert list(replay(result, start=4, stop=4)) == []
+
+
 def test_blurred_frames_replay_within_a_hundredth_of_a_pixel():
     config = cfg(exposure_s=1 / 60, n_subframes=4, revolutions=0.15)
     result = simulate(config)
@@ -135,6 +144,8 @@ def test_an_interrupted_clip_leaves_nothing(runs, tmp_path):
     (lambda r: write_clip("x.gif", [], fps=10, gif_scale=2), ValueError, "gif_scale must be in"),
     (lambda r: next(replay(r, every=0)), ValueError, "every must be an integer >= 1"),
     (lambda r: next(replay(r.frames)), TypeError, "result must be a TrackingResult"),
+    (lambda r: next(replay(r, start=-1)), ValueError, r"start must be an integer in \[0, 15\]"),
+    (lambda r: next(replay(r, stop=16)), ValueError, r"stop must be an integer in \[0, 15\]"),
 ])
 def test_bad_input_is_named(runs, call, error, message):
     with pytest.raises(error, match=message):

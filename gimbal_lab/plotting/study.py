@@ -7,7 +7,8 @@ import numpy as np
 
 from ..trajectories import Trajectory
 
-__all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest"]
+__all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
+           "run_explorer"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
@@ -182,3 +183,103 @@ def plot_forest(verdicts, ax=None):
     ax.grid(axis="x", alpha=0.3)
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, frameon=False, fontsize=8)
     return ax
+
+
+def plot_run_frame(passive, active, frame: int, renderer=None, fig=None):
+    """One instant of a cell: the passive and active cameras' frames with the overlays of
+    :func:`gimbal_lab.show.annotate`, and both runs' distance error over time with the instant
+    marked.
+
+    ``passive`` and ``active`` are the two runs of one cell and replicate; ``frame`` indexes both.
+    ``renderer`` (one for the cell's target and lens) is reused when given.
+    """
+    from ..show import TRACE_FRAMES, annotate, replay
+
+    n = len(passive.frames)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < n:
+        raise ValueError(f"frame must be an integer in [0, {n - 1}], got {frame!r}")
+    if fig is None:
+        fig = plt.figure(figsize=(11, 6.2), layout="constrained")
+    grid = fig.add_gridspec(2, 2, height_ratios=(3, 1.4))
+    for col, result in enumerate((passive, active)):
+        ax = fig.add_subplot(grid[0, col])
+        row, image = next(replay(result, renderer=renderer, start=frame, stop=frame + 1))
+        past = result.frames.iloc[max(0, frame - TRACE_FRAMES + 1): frame + 1]
+        ax.imshow(annotate(image, row, result.config, zip(past["true_u_px"], past["true_v_px"]),
+                           title=result.config.mode.upper()))
+        ax.set_axis_off()
+    ax = fig.add_subplot(grid[1, :])
+    for result in (passive, active):
+        f = result.frames
+        ax.plot(f["t_mid_s"], 1000 * f["abs_error_m"], color=_MODE_COLOURS[result.config.mode], lw=1.2,
+                label=result.config.mode)
+    t = passive.frames["t_mid_s"].iloc[frame]
+    ax.axvline(t, color="k", lw=1, ls="--")
+    for k in range(1, int(np.ceil(passive.config.revolutions))):
+        ax.axvline(k * passive.config.period_s, color="0.6", lw=0.8, ls=":")
+    ax.set_xlabel("t [s] (dotted: a new revolution; the first is acquisition)")
+    ax.set_ylabel("|d_est − d_true| [mm]")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
+    c = passive.config
+    revolution = int(passive.frames["revolution"].iloc[frame])
+    fig.suptitle(f"{c.target}, {c.distortion_label}, {c.trajectory}, replicate {c.seed}: frame {frame} "
+                 f"(t = {t:.2f} s, revolution {revolution + 1} of {int(np.ceil(c.revolutions))})", fontsize=10)
+    return fig
+
+
+def run_explorer(results, frame: int | None = None):
+    """Pick a cell and a replicate and scrub through its frames (ipywidgets).
+
+    ``results`` are study runs (e.g. one target's); every cell and replicate with both a passive
+    and an active run is offered. Each change redraws :func:`plot_run_frame` (two renders).
+    Outside a live kernel (nbmake, a static export) it draws once: the first cell and replicate
+    at ``frame`` (default: three quarters through the run).
+
+    Returns
+    -------
+    ipywidgets.interactive
+        Its ``result`` is the figure's title for the drawn instant.
+    """
+    import ipywidgets
+    from IPython.display import display
+
+    from ..simulation import make_renderer
+
+    pairs: dict = {}
+    for r in results:
+        c = r.config
+        pairs.setdefault((f"{c.distortion_label}/{c.trajectory}", c.seed), {})[c.mode] = r
+    pairs = {k: v for k, v in pairs.items() if set(v) == {"passive", "active"}}
+    if not pairs:
+        raise ValueError("results hold no cell with both a passive and an active run")
+    cells = list(dict.fromkeys(k[0] for k in pairs))
+    seeds = sorted({k[1] for k in pairs})
+    n = max(len(v["passive"].frames) for v in pairs.values())
+    start = (3 * n) // 4 if frame is None else frame
+    renderers: dict = {}
+
+    def draw(cell, replicate, frame):
+        pair = pairs.get((cell, replicate))
+        if pair is None:
+            print(f"no runs for {cell}, replicate {replicate}")
+            return None
+        c = pair["passive"].config
+        key = (c.target, c.distortion, c.width, c.height)
+        if key not in renderers:
+            renderers[key] = make_renderer(c)
+        fig = plot_run_frame(pair["passive"], pair["active"], min(frame, len(pair["passive"].frames) - 1),
+                             renderer=renderers[key])
+        title = fig.get_suptitle()
+        display(fig)
+        plt.close(fig)
+        return title
+
+    return ipywidgets.interactive(
+        draw,
+        cell=ipywidgets.Dropdown(options=cells, value=cells[0], description="cell"),
+        replicate=ipywidgets.Dropdown(options=seeds, value=seeds[0], description="replicate"),
+        frame=ipywidgets.IntSlider(value=start, min=0, max=n - 1, step=1, description="frame",
+                                   continuous_update=False),
+    )
