@@ -865,6 +865,8 @@ REFINEMENT_MODES = {
 
 
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])
+#: A pose whose corners reproject within this RMS (px) is kept without trying the other frame.
+_POSE_ACCEPT_PX = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -927,7 +929,11 @@ class ArucoTracker:
     turned by π about its x axis, F (y down, z into the marker), which sees the camera with a
     rotation near identity: the same IPPE-square call with the image corners in the order
     (3, 2, 1, 0), which are F's corners in IPPE-square's order, then
-    R_cam_marker = R_cam_F · diag(1, −1, −1); the translation is common to both frames.
+    R_cam_marker = R_cam_F · diag(1, −1, −1); the translation is common to both frames. A marker
+    turned upside down in its plane brings F's rotation near π in turn; so when F's pose
+    reprojects its corners worse than 0.5 px RMS, the marker frame is solved directly (IPPE-square,
+    then Levenberg–Marquardt from a homography start, which also covers a marker upside down and
+    square to the axis) and the pose with the smallest reprojection error is kept.
 
     Parameters
     ----------
@@ -1181,22 +1187,25 @@ class ArucoTracker:
             np.linalg.norm(image_points - np.roll(image_points, 1, axis=0), axis=1)
         ) < 1e-6:
             return None
-        flipped = image_points[::-1].copy()
-        try:
-            ok, rvec_f, tvec = cv2.solvePnP(self.object_points_m, flipped, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-            if not ok or not (np.all(np.isfinite(rvec_f)) and np.all(np.isfinite(tvec))):
-                # OpenCV 5's IPPE returns NaN for an exactly fronto-parallel square (integer corners
-                # of an axis-aligned marker, seen in the study); Levenberg–Marquardt from a
-                # homography start solves the same problem there.
-                ok, rvec_f, tvec = cv2.solvePnP(self.object_points_m, flipped, self._K, self._dist, flags=cv2.SOLVEPNP_ITERATIVE)
-        except cv2.error:  # a degenerate quad that passed the checks above
+        best = None
+        for solve in (self._solve_flipped, self._solve_direct, self._solve_iterative):
+            try:
+                found = solve(image_points)
+            except cv2.error:  # a degenerate quad that passed the checks above
+                found = None
+            if found is None:
+                continue
+            R_cam_marker, tvec = found
+            rvec = cv2.Rodrigues(R_cam_marker)[0]
+            reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
+            residual = float(np.sqrt(np.mean(np.sum((reprojected.reshape(4, 2) - image_points) ** 2, axis=1))))
+            if best is None or residual < best[0]:
+                best = (residual, R_cam_marker, rvec, tvec)
+            if residual < _POSE_ACCEPT_PX:
+                break  # consistent with its corners: the second solve cannot do meaningfully better
+        if best is None:
             return None
-        if not ok or not (np.all(np.isfinite(rvec_f)) and np.all(np.isfinite(tvec))):
-            return None
-        R_cam_marker = cv2.Rodrigues(rvec_f)[0] @ _FLIP_YZ
-        rvec = cv2.Rodrigues(R_cam_marker)[0]
-        reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
-        residual = reprojected.reshape(4, 2) - image_points
+        residual, R_cam_marker, rvec, tvec = best
         return MarkerPose(
             marker_id=int(marker_id),
             corners_px=image_points,
@@ -1204,8 +1213,39 @@ class ArucoTracker:
             R_cam_marker=R_cam_marker,
             t_cam_marker_m=tvec.reshape(3),
             center_px=image_points.mean(axis=0),
-            reprojection_error_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
+            reprojection_error_px=residual,
         )
+
+    def _solve(self, object_points, image_points):
+        """IPPE-square, or Levenberg–Marquardt where it returns NaN: (R, t) or None."""
+        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            # OpenCV 5's IPPE returns NaN for an exactly fronto-parallel square (integer corners
+            # of an axis-aligned marker, seen in the study); Levenberg–Marquardt from a
+            # homography start solves the same problem there.
+            ok, rvec, tvec = cv2.solvePnP(object_points, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            return None
+        return cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)
+
+    def _solve_flipped(self, image_points):
+        """Solve in the frame F (the marker turned by π about x): right for an upright marker."""
+        found = self._solve(self.object_points_m, image_points[::-1].copy())
+        return None if found is None else (found[0] @ _FLIP_YZ, found[1])
+
+    def _solve_direct(self, image_points):
+        """Solve in the marker frame itself: right where F's rotation is itself near π (a
+        marker turned upside down in its plane)."""
+        return self._solve(self.object_points_m, image_points)
+
+    def _solve_iterative(self, image_points):
+        """Levenberg–Marquardt from a homography start: for a marker upside down and square to
+        the optical axis, where both frames' rotations are near π."""
+        ok, rvec, tvec = cv2.solvePnP(self.object_points_m, image_points, self._K, self._dist,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            return None
+        return cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)
 
 
 def _quad_area(corners_px: np.ndarray) -> float:

@@ -78,7 +78,7 @@ def look_at_pose(camera_position_m, target_m=(0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0
     if not np.linalg.norm(z) > 0:
         raise ValueError("camera_position_m must differ from target_m")
     z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, float))
+    x = np.cross(-np.asarray(up, float), z)  # right = down × forward (x = y × z)
     if not np.linalg.norm(x) > 1e-9:
         raise ValueError("up must not be parallel to the viewing direction")
     x /= np.linalg.norm(x)

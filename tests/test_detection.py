@@ -772,3 +772,28 @@ def test_digital_discs_pass_the_shape_checks_from_three_pixels():
     contour = cv2.findContours(pair, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0]
     # staircase inset (≈ 0.45 px) on a 50 px radius: within 3 % of 1/2
     assert detector.shape_measures(contour)[0] == pytest.approx(0.5, rel=0.03)
+
+
+@pytest.mark.parametrize("offset_m", [(0.0, 0.0), (-0.1, -0.05), (0.02, 0.0)], ids=["on-axis", "off-axis", "near-axis"])
+def test_marker_rotation_is_right_at_every_roll(offset_m):
+    """Printed marker square to the optical axis, rolled in its plane in 15° steps: the pose's
+    rotation against the rendering pose (marker frame: x right, y up on the print, z out of it).
+    IPPE-square's π-rotation failure would show as a 180° error with tens of pixels of
+    reprojection; what remains is the tilt ambiguity of a square seen face-on (< 1° here)."""
+    texture, marker_px = printed_marker_texture("DICT_4X4_50", 7, cell_px=30)
+    length_m = 0.15
+    px_per_m = marker_px / length_m
+    c = texture.shape[0] / 2 / px_per_m
+    camera = PlanarTargetCamera(CAM, None, supersample=2)
+    tracker = ArucoTracker(CAM, marker_length_m=length_m)
+    for roll_deg in range(0, 360, 15):
+        roll = math.radians(roll_deg)
+        eye = (c + offset_m[0], c + offset_m[1], -0.8)
+        T = look_at_pose(eye, (eye[0], eye[1], 0.0), up=(math.sin(roll), -math.cos(roll), 0.0))
+        grey = np.round(255 * camera.render(texture, px_per_m, T)).astype(np.uint8)
+        pose = tracker.detect(np.dstack([grey] * 3))[7]
+        R_true = T[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # print frame (y down, z away) → marker frame
+        angle = math.degrees(math.acos(np.clip((np.trace(R_true.T @ pose.R_cam_marker) - 1) / 2, -1, 1)))
+        assert angle < 1.0, f"roll {roll_deg}°: rotation off by {angle:.1f}°"
+        assert pose.reprojection_error_px < 0.1
+        np.testing.assert_allclose(pose.t_cam_marker_m, (T @ [c, c, 0.0, 1.0])[:3], atol=0.003)

@@ -16,7 +16,7 @@ import pytest
 
 from gimbal_lab import cli
 from gimbal_lab import realworld as rw
-from gimbal_lab.camera import BrownConrady, Intrinsics
+from gimbal_lab.camera import BrownConrady, Intrinsics, project
 
 CAM = Intrinsics.default()
 LENS = BrownConrady.default()
@@ -63,22 +63,25 @@ def marker_recording(planar_camera):
 
 
 def test_calibration_recovers_the_camera_the_board_was_rendered_with(planar_camera):
-    # clean prints, 25 views: the estimate must be close to the truth, not merely fit well
+    # Clean prints, 25 views: the estimate must be close to the truth, not merely fit well.
+    # Bounds from 8 draws of views (seeds 1–8): rms 0.064–0.095 px, fx −0.20 … +0.59 %,
+    # cx −1.10 … +0.58 px, cy −0.95 … +0.66 px, k1 −0.2518 … −0.2447, k2 0.096 … 0.127
+    # (k2 reads low on average, traded against k3). Seed 1 here: fx −0.14 %, cx −1.10 px.
     result = rw.calibrate(board_frames(planar_camera, 25, 1, CLEAN), "chessboard", (9, 6), SQUARE_M)
     cam = result.intrinsics
     assert result.views == 25 and cam.size == CAM.size
-    assert result.rms_px < 0.1  # measured 0.069 px
-    assert cam.fx == pytest.approx(CAM.fx, rel=2e-3) and cam.fy == pytest.approx(CAM.fy, rel=2e-3)  # measured 0.03 %
-    assert abs(cam.cx - CAM.cx) < 1.0 and abs(cam.cy - CAM.cy) < 1.0  # measured 0.2 px
-    assert result.distortion.k1 == pytest.approx(LENS.k1, abs=0.01)  # measured −0.2516 vs −0.25
-    assert result.distortion.k2 == pytest.approx(LENS.k2, abs=0.02)  # measured 0.1255 vs 0.12
+    assert result.rms_px < 0.12
+    assert cam.fx == pytest.approx(CAM.fx, rel=0.01) and cam.fy == pytest.approx(CAM.fy, rel=0.01)
+    assert abs(cam.cx - CAM.cx) < 2.0 and abs(cam.cy - CAM.cy) < 2.0
+    assert result.distortion.k1 == pytest.approx(LENS.k1, abs=0.01)
+    assert result.distortion.k2 == pytest.approx(LENS.k2, abs=0.03)
 
 
 def test_calibration_on_photo_like_views_stays_within_a_percent(planar_camera):
     # uneven light, vignetting, defocus, noise and JPEG at quality 50
     result = rw.calibrate(board_frames(planar_camera, 12, 0, rw.PhotoEffects()), "chessboard", (9, 6), SQUARE_M)
     assert result.rms_px < 0.2  # measured 0.09 px
-    assert result.intrinsics.fx == pytest.approx(CAM.fx, rel=0.015)  # measured 0.8 %
+    assert result.intrinsics.fx == pytest.approx(CAM.fx, rel=0.015)  # measured 0.6 %
     assert result.distortion.k1 == pytest.approx(LENS.k1, abs=0.02)
 
 
@@ -299,3 +302,20 @@ def test_the_sample_calibration_is_the_study_camera():
     sample = rw.load_calibration(Path(__file__).parents[1] / "data" / "calibration" / "sample_640x480.yml")
     assert sample.intrinsics == CAM
     np.testing.assert_array_equal(sample.distortion.coefficients, LENS.coefficients)
+
+
+def test_look_at_pose_puts_up_up_and_right_right():
+    """The plane direction ``up`` appears straight up in the image and the camera frame is
+    right-handed, so a print is seen as printed (not turned by 180°)."""
+    K = Intrinsics.default()
+    for up in ((0.0, -1.0, 0.0), (1.0, 0.0, 0.0), (0.6, 0.8, 0.0)):
+        T = rw.look_at_pose((0.2, 0.1, -1.0), (0.2, 0.1, 0.0), up=up)
+        R = T[:3, :3]
+        assert np.linalg.det(R) == pytest.approx(1.0)
+        centre = T @ [0.2, 0.1, 0.0, 1.0]
+        above = T @ np.append(np.array([0.2, 0.1, 0.0]) + 0.1 * np.asarray(up), 1.0)
+        uv = project(np.array([centre[:3], above[:3]]), K)
+        assert uv[1, 1] < uv[0, 1] - 10 and abs(uv[1, 0] - uv[0, 0]) < 1e-9  # straight up in the image
+    # default: plane +x (texture columns) runs to the right, plane +y (texture rows) down
+    T = rw.look_at_pose((0.0, 0.0, -1.0), (0.0, 0.0, 0.0))
+    np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-15)
