@@ -73,3 +73,25 @@ def test_run_explorer_offers_every_paired_cell_and_redraws_on_change(cell_runs):
     assert widget.result.startswith("sphere, distorted, circular, replicate 1: frame 12 ")
     with pytest.raises(ValueError, match="no cell with both a passive and an active run"):
         study.run_explorer(cell_runs[:1])
+
+
+def test_error_bar_whiskers_are_the_replicate_interval_and_never_below_zero():
+    import numpy as np
+    import pandas as pd
+
+    from gimbal_lab.plotting import study
+
+    rows = []
+    for d in ("undistorted", "distorted"):
+        for t in ("circular", "diagonal"):
+            for mode, mean, low, high in (("passive", 0.070, 0.068, 0.072), ("active", 0.004, -0.001, 0.009)):
+                rows.append(dict(target="sphere", distortion=d, trajectory=t, mode=mode, method="circle",
+                                 mean_abs_error_m=mean, ci_low_m=low, ci_high_m=high))
+    ax = study.plot_error_bars(pd.DataFrame(rows), "sphere")
+    bars = [c for c in ax.containers if hasattr(c, "errorbar")]
+    passive, active = bars
+    for container, low, high in ((passive, 68.0, 72.0), (active, 0.0, 9.0)):  # mm; active's −1 mm drawn at 0
+        segments = container.errorbar.lines[2][0].get_segments()
+        assert len(segments) == 4
+        for seg in segments:
+            np.testing.assert_allclose(sorted(seg[:, 1]), [low, high], atol=1e-9)

@@ -55,7 +55,8 @@ def plot_error_bars(summary, target: str, ax=None, methods=None):
     Notes
     -----
     The whiskers are the 95 % t-interval of the mean over replicates (the paper shows ± one std of
-    frames, which mixes spread within a revolution with uncertainty).
+    frames, which mixes spread within a revolution with uncertainty); a lower end below zero is
+    drawn at zero, since the mean of an absolute error cannot be negative.
     """
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 4.2))
@@ -79,6 +80,7 @@ def plot_error_bars(summary, target: str, ax=None, methods=None):
             lows.append(1000 * row["ci_low_m"].iloc[0] if ok else np.nan)
             highs.append(1000 * row["ci_high_m"].iloc[0] if ok else np.nan)
         means, lows, highs = map(np.asarray, (means, lows, highs))
+        lows = np.maximum(lows, 0.0)  # a mean |error| cannot be negative: the whisker stops at 0
         yerr = np.vstack((means - lows, highs - means))
         label = mode if len(methods) == 1 else f"{meth}, {mode}"
         ax.bar(x + (j - (len(series) - 1) / 2) * width, means, width, yerr=yerr, capsize=3,
