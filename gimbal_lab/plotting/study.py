@@ -268,7 +268,7 @@ def run_explorer(results, frame: int | None = None):
             print(f"no runs for {cell}, replicate {replicate}")
             return None
         c = pair["passive"].config
-        key = (c.target, c.distortion, c.width, c.height)
+        key = (c.target, c.lens, c.intrinsics)  # what make_renderer builds from
         if key not in renderers:
             renderers[key] = make_renderer(c)
         fig = plot_run_frame(pair["passive"], pair["active"], min(frame, len(pair["passive"].frames) - 1),
