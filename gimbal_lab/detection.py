@@ -1188,21 +1188,14 @@ class ArucoTracker:
         ) < 1e-6:
             return None
         best = None
-        for solve in (self._solve_flipped, self._solve_direct, self._solve_iterative):
-            try:
-                found = solve(image_points)
-            except cv2.error:  # a degenerate quad that passed the checks above
-                found = None
-            if found is None:
-                continue
-            R_cam_marker, tvec = found
+        for R_cam_marker, tvec in self._candidate_poses(image_points):
             rvec = cv2.Rodrigues(R_cam_marker)[0]
             reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
             residual = float(np.sqrt(np.mean(np.sum((reprojected.reshape(4, 2) - image_points) ** 2, axis=1))))
             if best is None or residual < best[0]:
                 best = (residual, R_cam_marker, rvec, tvec)
             if residual < _POSE_ACCEPT_PX:
-                break  # consistent with its corners: the second solve cannot do meaningfully better
+                break  # consistent with its corners: the next solve cannot do meaningfully better
         if best is None:
             return None
         residual, R_cam_marker, rvec, tvec = best
@@ -1216,36 +1209,35 @@ class ArucoTracker:
             reprojection_error_px=residual,
         )
 
-    def _solve(self, object_points, image_points):
-        """IPPE-square, or Levenberg–Marquardt where it returns NaN: (R, t) or None."""
-        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-            # OpenCV 5's IPPE returns NaN for an exactly fronto-parallel square (integer corners
-            # of an axis-aligned marker, seen in the study); Levenberg–Marquardt from a
-            # homography start solves the same problem there.
-            ok, rvec, tvec = cv2.solvePnP(object_points, image_points, self._K, self._dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    def _pnp(self, image_points, flags):
+        """``solvePnP`` of the marker's object corners: (R, t), or None when it fails or returns NaN."""
+        try:
+            ok, rvec, tvec = cv2.solvePnP(self.object_points_m, image_points, self._K, self._dist, flags=flags)
+        except cv2.error:  # a degenerate quad that passed the checks of pose_from_corners
+            return None
         if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
             return None
         return cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)
 
-    def _solve_flipped(self, image_points):
-        """Solve in the frame F (the marker turned by π about x): right for an upright marker."""
-        found = self._solve(self.object_points_m, image_points[::-1].copy())
-        return None if found is None else (found[0] @ _FLIP_YZ, found[1])
+    def _candidate_poses(self, image_points):
+        """Poses to try, best first, computed only as far as they are asked for.
 
-    def _solve_direct(self, image_points):
-        """Solve in the marker frame itself: right where F's rotation is itself near π (a
-        marker turned upside down in its plane)."""
-        return self._solve(self.object_points_m, image_points)
-
-    def _solve_iterative(self, image_points):
-        """Levenberg–Marquardt from a homography start: for a marker upside down and square to
-        the optical axis, where both frames' rotations are near π."""
-        ok, rvec, tvec = cv2.solvePnP(self.object_points_m, image_points, self._K, self._dist,
-                                      flags=cv2.SOLVEPNP_ITERATIVE)
-        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-            return None
-        return cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)
+        1. IPPE-square in the frame F (the marker turned by π about x; corners (3, 2, 1, 0)):
+           right for an upright marker. Where IPPE returns NaN (an exactly fronto-parallel
+           square, seen in the study), Levenberg–Marquardt from a homography start in F.
+        2. IPPE-square in the marker frame: right where F's rotation is itself near π (a marker
+           turned upside down in its plane).
+        3. Levenberg–Marquardt in the marker frame: a marker upside down and square to the
+           optical axis, where both frames' rotations are near π.
+        """
+        flipped = image_points[::-1].copy()
+        found = self._pnp(flipped, cv2.SOLVEPNP_IPPE_SQUARE) or self._pnp(flipped, cv2.SOLVEPNP_ITERATIVE)
+        if found is not None:
+            yield found[0] @ _FLIP_YZ, found[1]
+        for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_ITERATIVE):
+            found = self._pnp(image_points, flags)
+            if found is not None:
+                yield found
 
 
 def _quad_area(corners_px: np.ndarray) -> float:

@@ -334,25 +334,16 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     finish(futures[fut], fut.result())
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        # Ctrl-C or a failed run: stop the rest at once instead of computing runs nobody will see
         if pool is not None and executor is None:
             _stop_pool(pool)
             pool = None
-        elif pool is not None:
-            for fut in futures:
-                fut.cancel()
-        if bar is not None:
-            bar.close()
-        kept = sum(r is not None for r in unique.values())
-        raise RunInterrupted(kept, len(unique), store) from None
-    except BaseException:
-        # a run failed: stop the rest at once instead of computing runs nobody will see
-        if pool is not None and executor is None:
-            _stop_pool(pool)
-            pool = None
-        else:
-            for fut in futures:
-                fut.cancel()
+        for fut in futures:
+            fut.cancel()
+        if isinstance(exc, KeyboardInterrupt):
+            kept = sum(r is not None for r in unique.values())
+            raise RunInterrupted(kept, len(unique), store) from None
         raise
     finally:
         if pool is not None and executor is None:
