@@ -27,8 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .simulation import TrackingConfig, TrackingResult, make_renderer, world_T_base
-from .trajectories import target_pose
+from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame, world_T_base
 
 __all__ = ["replay", "annotate", "side_by_side", "write_clip", "show"]
 
@@ -62,9 +61,10 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
 
     Notes
     -----
-    The images are bit-identical to the run's for sharp frames (``exposure_s == 0``); with motion
-    blur the joint angles at the exposure start are recovered from the mid-exposure angles and
-    rates, to the last bit of a float.
+    Frames are rendered by :func:`gimbal_lab.simulation.render_frame`, as in the run. They are
+    bit-identical to the run's for sharp frames (``exposure_s == 0``); with motion blur the joint
+    angles at the exposure start are recovered from the mid-exposure angles and rates, to the
+    last bit of a float.
     """
     from .kinematics import GimbalKinematics
     from .scene import add_sensor_noise
@@ -84,31 +84,25 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
     try:
         kin = GimbalKinematics.default()
         T_world_base = world_T_base(kin)
+
+        def camera_pose(q):
+            return T_world_base @ kin.forward(q, check_limits=False)
+
         rng = np.random.default_rng(config.seed)
         half = 0.5 * config.exposure_s
         q_cols = ["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]
         qd_cols = ["qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s"]
+        blank = np.zeros((config.height, config.width, 3), np.uint8)
         for i, row in enumerate(result.frames.itertuples(index=False)):
             if i >= stop:
                 break
+            if i < start or (i - start) % every:
+                add_sensor_noise(blank, config.noise_std, rng)  # keeps the noise stream in step with the run
+                continue
             q = np.array([getattr(row, c) for c in q_cols])
             qd = np.array([getattr(row, c) for c in qd_cols])
-            if i < start or (i - start) % every:
-                # keep the noise stream in step with the run without rendering
-                add_sensor_noise(np.zeros((config.height, config.width, 3), np.uint8), config.noise_std, rng)
-                continue
-            t_s = row.t_s
-            if config.exposure_s > 0 and config.n_subframes > 1:
-                q0 = q - qd * half
-
-                def pose_fn(t, q0=q0, qd=qd, t_k=t_s):
-                    T_cam = T_world_base @ kin.forward(q0 + qd * (t - t_k), check_limits=False)
-                    return T_cam, target_pose(config.path, t + config.start_phase_s)
-
-                image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
-            else:
-                T_cam = T_world_base @ kin.forward(q, check_limits=False)
-                image = renderer.render(T_cam, target_pose(config.path, row.t_mid_s + config.start_phase_s))
+            # the run's joint angles at the exposure start, from the mid-exposure ones
+            image = render_frame(config, renderer, camera_pose, q - qd * half, qd, row.t_s)[0]
             yield row, add_sensor_noise(image, config.noise_std, rng)
     finally:
         if own:

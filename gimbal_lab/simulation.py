@@ -39,7 +39,8 @@ import pandas as pd
 from .camera import BrownConrady, Intrinsics, project
 from .trajectories import Trajectory, target_pose
 
-__all__ = ["TrackingConfig", "TrackingResult", "simulate", "FRAME_COLUMNS", "world_T_base", "make_renderer"]
+__all__ = ["TrackingConfig", "TrackingResult", "simulate", "render_frame", "FRAME_COLUMNS", "world_T_base",
+           "make_renderer"]
 
 _TARGETS = ("sphere", "aruco")
 _MODES = ("passive", "active")
@@ -379,6 +380,33 @@ _COLUMNS = [
 ]
 
 
+def render_frame(config: TrackingConfig, renderer, camera_pose, q0, qd, t_s: float):
+    """The image of the frame exposed from ``t_s`` (before sensor noise) and its mid-exposure state.
+
+    Within one exposure the joints turn at their rate ``qd`` from ``q0`` (the render's
+    interpolation); ``camera_pose(q)`` gives ``T_world_cam``. With ``exposure_s > 0`` and several
+    sub-frames the image integrates the exposure, otherwise it is the mid-exposure instant.
+
+    Returns
+    -------
+    image, q, T_world_cam, T_world_target
+        ``q`` and the poses at the mid-exposure instant ``t_s + exposure_s / 2``.
+    """
+    half_exposure = 0.5 * config.exposure_s
+    path, phase = config.path, config.start_phase_s
+    q = q0 + qd * half_exposure
+    T_world_cam = camera_pose(q)
+    T_world_target = target_pose(path, t_s + half_exposure + phase)
+    if config.exposure_s > 0 and config.n_subframes > 1:
+        def pose_fn(t):
+            return camera_pose(q0 + qd * (t - t_s)), target_pose(path, t + phase)
+
+        image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
+    else:
+        image = renderer.render(T_world_cam, T_world_target)
+    return image, q, T_world_cam, T_world_target
+
+
 def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> TrackingResult:
     """Run one closed-loop tracking experiment.
 
@@ -411,8 +439,6 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     rng = np.random.default_rng(config.seed)
     K = config.intrinsics
     lens = config.lens
-    path = config.path
-    phase = config.start_phase_s
     half_exposure = 0.5 * config.exposure_s
     estimate = _Estimator(config)
     kin = GimbalKinematics.default()
@@ -450,19 +476,9 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         t_mid = t_s + half_exposure
         q0 = np.array([a.angle_rad for a in axes])
         qd = np.array([a.rate_rad_s for a in axes])
-        # Within one exposure the joints turn at their current rate (the render's interpolation).
-        q = q0 + qd * half_exposure
-        T_world_cam = camera_pose(q)
-        T_world_target = target_pose(path, t_mid + phase)
 
         t0 = time.perf_counter()
-        if config.exposure_s > 0 and config.n_subframes > 1:
-            def pose_fn(t, q0=q0, qd=qd, t_k=t_s):
-                return camera_pose(q0 + qd * (t - t_k)), target_pose(path, t + phase)
-
-            image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
-        else:
-            image = renderer.render(T_world_cam, T_world_target)
+        image, q, T_world_cam, T_world_target = render_frame(config, renderer, camera_pose, q0, qd, t_s)
         image = add_sensor_noise(image, config.noise_std, rng)
         t1 = time.perf_counter()
         uv, p_cam, p_cam_alt = estimate(image)

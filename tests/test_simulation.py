@@ -160,3 +160,40 @@ def test_custom_lens_and_key():
     assert c.key != TrackingConfig().key and c.key == TrackingConfig(distortion=BrownConrady(k1=-0.1)).key
     assert TrackingConfig(distortion="none").lens is None
     assert math.isclose(TrackingConfig().intrinsics.fx, 554.256, rel_tol=1e-5)
+
+
+def test_render_frame_takes_the_mid_exposure_state_and_integrates_over_the_exposure():
+    """Joint angles and target at t_s + exposure/2 (by hand), sub-frame poses along the exposure."""
+    from gimbal_lab.simulation import render_frame
+    from gimbal_lab.trajectories import target_pose
+
+    class Recorder:
+        def __init__(self):
+            self.calls = []
+
+        def render(self, T_cam, T_target):
+            self.calls.append(("render", T_cam, T_target))
+            return "sharp"
+
+        def render_exposure(self, pose_fn, t0, exposure, n):
+            self.calls.append(("exposure", [pose_fn(t0 + exposure * (j + 0.5) / n) for j in range(n)]))
+            return "blurred"
+
+    camera_pose = lambda q: np.diag([1.0, 1.0, 1.0, 1.0]) + np.pad(np.diag(q), ((0, 1), (0, 1)))
+    q0, qd = np.array([0.1, -0.2, 0.3]), np.array([2.0, -1.0, 0.5])
+    for exposure, n, kind in ((0.0, 1, "sharp"), (1 / 60, 4, "blurred")):
+        config = TrackingConfig(mode="active", exposure_s=exposure, n_subframes=n, start_phase_s=0.7)
+        renderer = Recorder()
+        image, q, T_cam, T_target = render_frame(config, renderer, camera_pose, q0, qd, 1.5)
+        t_mid = 1.5 + exposure / 2
+        assert image == kind
+        np.testing.assert_array_equal(q, q0 + qd * exposure / 2)
+        np.testing.assert_array_equal(T_cam, camera_pose(q0 + qd * exposure / 2))
+        np.testing.assert_allclose(T_target, target_pose(config.path, t_mid + 0.7), atol=1e-15)
+        if kind == "blurred":
+            for j, (T_c, T_t) in enumerate(renderer.calls[0][1]):
+                t = 1.5 + exposure * (j + 0.5) / n
+                np.testing.assert_allclose(T_c, camera_pose(q0 + qd * (t - 1.5)), atol=1e-15)
+                np.testing.assert_allclose(T_t, target_pose(config.path, t + 0.7), atol=1e-15)
+        else:
+            assert renderer.calls[0][0] == "render"
