@@ -450,16 +450,19 @@ def speed_ms(frames, repeats: int) -> dict[str, float]:
 # --------------------------------------------------------------------------------------------
 
 
+def rows_by_size(records, with_unknown=False):
+    """(label, records) per marker-size bin that has any, then markers of unknown size (if asked),
+    then all of them."""
+    rows = [(label, [r for r in records if size_bin(r["side"]) == k]) for k, label in enumerate(BIN_LABELS)]
+    if with_unknown:
+        rows.append(("unknown", [r for r in records if math.isnan(r["side"])]))
+    rows.append(("all", records))
+    return [(label, subset) for label, subset in rows if subset]
+
+
 def print_recall(records, false):
     print(f"  {'side px':9s} {'markers':>7s}" + "".join(f" {name:>18s}" for name in DETECTORS))
-    rows = [(label, [r for r in records if size_bin(r["side"]) == k]) for k, label in enumerate(BIN_LABELS)]
-    unknown = [r for r in records if math.isnan(r["side"])]
-    if unknown:
-        rows.append(("unknown", unknown))
-    rows.append(("all", records))
-    for label, subset in rows:
-        if not subset:
-            continue
+    for label, subset in rows_by_size(records, with_unknown=True):
         cells = ""
         for name in DETECTORS:
             hits = sum(r["found"][name] is not None for r in subset)
@@ -472,11 +475,7 @@ def print_corner_errors(records):
     with_truth = [r for r in records if r["truth"] is not None]
     common = [r for r in with_truth if all(r["found"][name] is not None for name in DETECTORS)]
     print(f"  {'side px':9s} {'markers':>7s}" + "".join(f" {name + ' med/p95':>22s}" for name in DETECTORS))
-    rows = [(label, [r for r in common if size_bin(r["side"]) == k]) for k, label in enumerate(BIN_LABELS)]
-    rows.append(("all", common))
-    for label, subset in rows:
-        if not subset:
-            continue
+    for label, subset in rows_by_size(common):
         cells = ""
         for name in DETECTORS:
             errors = np.concatenate([np.linalg.norm(r["found"][name] - r["truth"], axis=1) for r in subset])

@@ -8,6 +8,7 @@ on two cores; the subprocess tests run real spawned worker pools.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -262,6 +263,8 @@ def test_dask_executor_gives_the_same_frames_as_one_process(reference):
 # ------------------------------------------------------------------------------------------------
 # Ctrl-C and SIGKILL of a sweep running on local workers (real subprocesses)
 # ------------------------------------------------------------------------------------------------
+# The sweep tests find the pool's workers and their states through /proc (Linux only); elsewhere
+# they cannot tell a live worker from a zombie and are skipped.
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 
 SWEEP_SCRIPT = textwrap.dedent('''
@@ -396,6 +399,21 @@ def _start_sweep(tmp_path: Path, configs) -> tuple[subprocess.Popen, Path, list]
     return proc, store / "runs", args
 
 
+@contextlib.contextmanager
+def _sweep(tmp_path: Path, configs):
+    """A running sweep (process, store runs folder, command, processes seen so far); on leaving,
+    whatever happened, the sweep's process group and every process it started are killed."""
+    proc, runs, args = _start_sweep(tmp_path, configs)
+    seen: dict[Proc, tuple[int, str]] = {}
+    try:
+        yield proc, runs, args, seen
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        _kill_leftovers(seen)
+
+
 def _output(tmp_path: Path) -> tuple[str, str]:
     return (tmp_path / "stdout.txt").read_text(), (tmp_path / "stderr.txt").read_text()
 
@@ -438,9 +456,7 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
     # Worker 1 runs the 10-revolution config (~2.5 s), worker 2 the 2-revolution one and then idles:
     # when the first result lands, worker 1 still has ~2 s to go.
     configs = [cfg(revolutions=10, seed=30), cfg(revolutions=2, mode="active", seed=31)]
-    proc, runs, args = _start_sweep(tmp_path, configs)
-    seen: dict[Proc, tuple[int, str]] = {}
-    try:
+    with _sweep(tmp_path, configs) as (proc, runs, args, seen):
         _wait_first_result(proc, runs, seen)
         assert len(_workers(seen, proc.pid)) == 2, seen
         os.killpg(proc.pid, signal.SIGINT)
@@ -450,11 +466,6 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
         # the parent itself stopped its workers before exiting (their watchdog would only do it later)
         workers_left = [p for p in _workers(seen, proc.pid) if _alive(p)]
         left = _wait_dead(seen, timeout=5.0)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        _kill_leftovers(seen)
     print(f"\n[wall time] Ctrl-C to exit: {stop_s:.2f} s")
     out, err = _output(tmp_path)
     assert not workers_left, f"workers alive after the parent exited: {workers_left}"
@@ -492,9 +503,7 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
 def test_workers_ignore_sigint_and_sigkill_of_the_parent_leaves_no_orphans(tmp_path):
     # One long run keeps a worker busy; the other worker finishes its short run and idles.
     configs = [cfg(revolutions=60, seed=40), cfg(seed=41)]
-    proc, runs, _ = _start_sweep(tmp_path, configs)
-    seen: dict[Proc, tuple[int, str]] = {}
-    try:
+    with _sweep(tmp_path, configs) as (proc, runs, _, seen):
         _wait_first_result(proc, runs, seen)
         workers = _workers(seen, proc.pid)
         assert len(workers) == 2, seen
@@ -507,11 +516,6 @@ def test_workers_ignore_sigint_and_sigkill_of_the_parent_leaves_no_orphans(tmp_p
         os.kill(proc.pid, signal.SIGKILL)  # the parent alone, as the OOM killer would
         proc.wait(timeout=10)
         left = _wait_dead(seen, timeout=5.0)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        _kill_leftovers(seen)
     assert proc.returncode == -signal.SIGKILL
     assert not left, f"orphans 5 s after the parent was killed: {left}"
 
