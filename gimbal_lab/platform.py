@@ -310,6 +310,9 @@ class BodyMotion:
     flight : WaypointFlight or None
     seed : int
         Seed of every random draw (same seed → same motion).
+    time_offset_s : float
+        The motion at time t is the unshifted motion's at t + ``time_offset_s`` (replicates of a
+        flight start at different points of the pass).
 
     Examples
     --------
@@ -324,6 +327,7 @@ class BodyMotion:
     vibration: Vibration | None = None
     flight: WaypointFlight | None = None
     seed: int = 0
+    time_offset_s: float = 0.0
     _parts: dict = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -332,6 +336,7 @@ class BodyMotion:
             raise ValueError(f"position_m must be three finite numbers (metres), got {self.position_m!r}")
         object.__setattr__(self, "position_m", tuple(float(x) for x in v))
         object.__setattr__(self, "yaw_rad", _number("yaw_rad", self.yaw_rad))
+        object.__setattr__(self, "time_offset_s", _number("time_offset_s", self.time_offset_s))
         for name, kind in (("sway", HoverSway), ("vibration", Vibration), ("flight", WaypointFlight)):
             value = getattr(self, name)
             if value is not None and not isinstance(value, kind):
@@ -388,7 +393,7 @@ class BodyMotion:
 
     def attitude(self, t_s):
         """(yaw, pitch, roll) and their time derivatives at ``t_s``: two arrays of shape (N, 3)."""
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        t = np.atleast_1d(np.asarray(t_s, dtype=float)) + self.time_offset_s
         if not np.all(np.isfinite(t)):
             raise ValueError("t_s must be finite")
         angles = np.zeros((t.size, 3))
@@ -422,7 +427,7 @@ class BodyMotion:
 
     def position(self, t_s):
         """Body origin in the world at ``t_s``: (N, 3)."""
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        t = np.atleast_1d(np.asarray(t_s, dtype=float)) + self.time_offset_s
         p = np.tile(np.asarray(self.position_m), (t.size, 1))
         if self.flight is not None:
             p = self.flight.kinematics(t)[0]

@@ -27,7 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame, world_T_base
+from .mount import exposure_pose_fn
+from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame
 
 __all__ = ["replay", "annotate", "side_by_side", "write_clip", "show"]
 
@@ -62,9 +63,9 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
     Notes
     -----
     Frames are rendered by :func:`gimbal_lab.simulation.render_frame`, as in the run. They are
-    bit-identical to the run's for sharp frames (``exposure_s == 0``); with motion blur the joint
-    angles at the exposure start are recovered from the mid-exposure angles and rates, to the
-    last bit of a float.
+    bit-identical to the run's: each is rendered from the joint angles and the camera's inertial
+    rates the run recorded at its exposure's start (``q0_*``, ``w_*``) and the config's body
+    motion, exactly as the closed loop rendered it.
     """
     from .kinematics import GimbalKinematics
     from .scene import add_sensor_noise
@@ -83,15 +84,11 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
         renderer = make_renderer(config)
     try:
         kin = GimbalKinematics.default()
-        T_world_base = world_T_base(kin)
-
-        def camera_pose(q):
-            return T_world_base @ kin.forward(q, check_limits=False)
-
+        body = config.body
+        window_s = config.exposure_s + config.readout_s
         rng = np.random.default_rng(config.seed)
-        half = 0.5 * config.exposure_s
-        q_cols = ["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]
-        qd_cols = ["qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s"]
+        q0_cols = ["q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad"]
+        w_cols = ["w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s"]
         blank = np.zeros((config.height, config.width, 3), np.uint8)
         for i, row in enumerate(result.frames.itertuples(index=False)):
             if i >= stop:
@@ -99,10 +96,10 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
             if i < start or (i - start) % every:
                 add_sensor_noise(blank, config.noise_std, rng)  # keeps the noise stream in step with the run
                 continue
-            q = np.array([getattr(row, c) for c in q_cols])
-            qd = np.array([getattr(row, c) for c in qd_cols])
-            # the run's joint angles at the exposure start, from the mid-exposure ones
-            image = render_frame(config, renderer, camera_pose, q - qd * half, qd, row.t_s)[0]
+            q0 = np.array([getattr(row, c) for c in q0_cols])
+            w = np.array([getattr(row, c) for c in w_cols])
+            camera_fn = exposure_pose_fn(kin, body, config.mount, q0, w, row.t_s, row.t_s + window_s)
+            image = render_frame(config, renderer, camera_fn, row.t_s)[0]
             yield row, add_sensor_noise(image, config.noise_std, rng)
     finally:
         if own:

@@ -48,6 +48,9 @@ _DISTORTIONS = ("none", "default")
 _SPHERE_METHODS = ("circle", "ellipse")
 _REFINEMENTS = ("none", "subpix", "contour", "apriltag")
 _OUTER_LOOPS = ("paper", "predictive")
+_MOTIONS = ("static", "hover", "vibration", "flight")
+_PASSIVE_MOUNTS = ("stabilised", "fixed")
+_BLURS = ("subframes", "fast")
 
 #: Upper bounds that keep a config's sizes sane (a run, not a typo, decides the cost).
 _MAX_IMAGE_PX = 8192
@@ -128,6 +131,26 @@ class TrackingConfig:
         solvePnP). False (paper): they assume a pinhole camera whatever the lens.
     exposure_s, n_subframes : float, int
         Motion blur: frames integrate ``n_subframes`` renders over ``exposure_s`` (0 s, 1: sharp).
+    blur : {"subframes", "fast"}
+        How an exposure is integrated: "subframes" averages ``n_subframes`` full renders;
+        "fast" is :meth:`gimbal_lab.scene.SceneRenderer.render_motion` (warped layers, global or
+        rolling shutter; ``n_subframes`` is then unused).
+    readout_s : float
+        Rolling-shutter readout time (0: global shutter); row r is exposed from t + r·readout_s/H.
+        Needs ``blur="fast"``.
+    motion : {"static", "hover", "vibration", "flight"}
+        The drone body's motion (:mod:`gimbal_lab.platform`): still (the paper), hover sway, hover
+        sway with blade-pass vibration, or the waypoint pass with sway. Drawn from ``seed``.
+    motion_phase_s : float
+        Time offset into the body's motion, s (>= 0): replicates of the flight start at different
+        points of the pass.
+    passive_mount : {"stabilised", "fixed"}
+        What "passive" means: the gimbal holding its home orientation in the world (the paper's
+        passive case; identical to a rigid camera while the body is still), or a camera fixed
+        rigidly to the body (:mod:`gimbal_lab.mount`).
+    gyro_noise_rad_s_rthz : float
+        White-noise density of the camera-platform gyro, rad/s/√Hz (0: ideal, the paper study;
+        the moving-drone study: 0.005 °/s/√Hz).
     noise_std : float
         Sensor noise standard deviation in 8-bit grey levels (the study: 2).
     seed : int
@@ -153,6 +176,12 @@ class TrackingConfig:
     calibrated: bool = False
     exposure_s: float = 0.0
     n_subframes: int = 1
+    blur: str = "subframes"
+    readout_s: float = 0.0
+    motion: str = "static"
+    motion_phase_s: float = 0.0
+    passive_mount: str = "stabilised"
+    gyro_noise_rad_s_rthz: float = 0.0
     noise_std: float = 2.0
     seed: int = 0
 
@@ -163,6 +192,9 @@ class TrackingConfig:
         _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
         _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
         _choice("outer_loop", self.outer_loop, _OUTER_LOOPS)
+        _choice("blur", self.blur, _BLURS)
+        _choice("motion", self.motion, _MOTIONS)
+        _choice("passive_mount", self.passive_mount, _PASSIVE_MOUNTS)
         if not isinstance(self.distortion, BrownConrady):
             _choice("distortion", self.distortion, _DISTORTIONS)
         set_ = lambda name, value: object.__setattr__(self, name, value)
@@ -185,6 +217,16 @@ class TrackingConfig:
                                        integer=True))
         set_("exposure_s", _number("exposure_s", self.exposure_s, low=0.0, high=1.0 / self.fps))
         set_("noise_std", _number("noise_std", self.noise_std, low=0.0, high=128.0))
+        set_("readout_s", _number("readout_s", self.readout_s, low=0.0, high=1.0 / self.fps))
+        if self.readout_s > 0 and self.blur != "fast":
+            raise ValueError(f"readout_s > 0 (a rolling shutter) needs blur='fast', got blur={self.blur!r}")
+        set_("motion_phase_s", _number("motion_phase_s", self.motion_phase_s, low=0.0, high=1e6))
+        set_("gyro_noise_rad_s_rthz", _number("gyro_noise_rad_s_rthz", self.gyro_noise_rad_s_rthz, low=0.0, high=1.0))
+        if self.mode == "active" and self.passive_mount != "stabilised":
+            raise ValueError(f"passive_mount={self.passive_mount!r} needs mode='passive' (the active camera is "
+                             "always on the gimbal)")
+        if self.motion != "static" and self.mode == "active" and self.outer_loop == "predictive":
+            raise ValueError("outer_loop='predictive' assumes a still body; use motion='static' or outer_loop='paper'")
         if not isinstance(self.calibrated, (bool, np.bool_)):
             raise TypeError(f"calibrated must be a bool, got {self.calibrated!r}")
         set_("calibrated", bool(self.calibrated))
@@ -211,6 +253,25 @@ class TrackingConfig:
     @property
     def path(self) -> Trajectory:
         return Trajectory(self.trajectory, period_s=self.period_s)
+
+    @property
+    def mount(self) -> str:
+        """The camera mount: "active", or the passive mount ("stabilised" or "fixed")."""
+        return "active" if self.mode == "active" else self.passive_mount
+
+    @property
+    def body(self):
+        """The drone body's motion (:class:`gimbal_lab.platform.BodyMotion`), seeded from ``seed``."""
+        from .platform import BodyMotion
+
+        seed = int(np.random.SeedSequence([self.seed, 1]).generate_state(1)[0])
+        if self.motion == "static":
+            return BodyMotion.static(BODY_POSITION_M)
+        if self.motion == "flight":
+            body = BodyMotion.flying(seed)
+        else:
+            body = BodyMotion.hover(seed, vibration=self.motion == "vibration", position_m=BODY_POSITION_M)
+        return replace(body, time_offset_s=self.motion_phase_s)
 
     @property
     def n_frames(self) -> int:
@@ -249,7 +310,8 @@ class TrackingConfig:
 
     @property
     def label(self) -> str:
-        return f"{self.target}/{self.distortion_label}/{self.trajectory}/{self.mode}"
+        base = f"{self.target}/{self.distortion_label}/{self.trajectory}/{self.mode}"
+        return base if self.motion == "static" else f"{self.target}/{self.motion}/{self.mount}"
 
 
 @dataclass
@@ -279,7 +341,8 @@ class TrackingResult:
 FRAME_COLUMNS = {
     "frame": "frame index",
     "t_s": "time the frame's exposure starts, s (run time; the target's motion time is t_s + start_phase_s)",
-    "t_mid_s": "mid-exposure instant, s: the instant the truth and the camera pose refer to",
+    "t_mid_s": "truth instant, s: mid-exposure (rolling shutter: mid-exposure of the target's row); the truth "
+               "and the camera pose refer to it",
     "revolution": "revolution the mid-exposure instant falls in, counted from 0 (0: acquisition)",
     "detected": "target detected and localised",
     "true_x_m, true_y_m, true_z_m": "true target centre, world frame",
@@ -295,6 +358,11 @@ FRAME_COLUMNS = {
     "q_yaw_rad, q_roll_rad, q_pitch_rad": "joint angles at the mid-exposure instant",
     "qd_yaw_rad_s, qd_roll_rad_s, qd_pitch_rad_s": "joint rates when the exposure starts",
     "alt_*": "sphere only: the same columns for the other localiser (circle ↔ ellipse) on the same frame",
+    "q0_yaw_rad, q0_roll_rad, q0_pitch_rad": "joint angles when the exposure starts",
+    "w_yaw_rad_s, w_roll_rad_s, w_pitch_rad_s": "the camera's inertial rate in the joint basis when the exposure "
+                                                "starts (gimbal_lab.mount); with q0 it re-renders the frame",
+    "streak_px": "the target's blur streak: length of the true centre's image path over the exposure, px",
+    "cam_turn_deg": "largest rotation of the camera within the exposure, degrees (pointing jitter)",
 }
 
 
@@ -377,34 +445,88 @@ _COLUMNS = [
     "q_yaw_rad", "q_roll_rad", "q_pitch_rad", "qd_yaw_rad_s", "qd_roll_rad_s", "qd_pitch_rad_s",
     "alt_detected", "alt_est_x_m", "alt_est_y_m", "alt_est_z_m",
     "alt_est_cam_x_m", "alt_est_cam_y_m", "alt_est_cam_z_m", "alt_d_est_m", "alt_error_m", "alt_abs_error_m",
+    "q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad", "w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s",
+    "streak_px", "cam_turn_deg",
 ]
 
 
-def render_frame(config: TrackingConfig, renderer, camera_pose, q0, qd, t_s: float):
-    """The image of the frame exposed from ``t_s`` (before sensor noise) and its mid-exposure state.
+def truth_time(config: TrackingConfig, t_s: float, camera_fn, target_fn) -> float:
+    """The instant a frame exposed from ``t_s`` shows the target: its truth time, s.
 
-    Within one exposure the joints turn at their rate ``qd`` from ``q0`` (the render's
-    interpolation); ``camera_pose(q)`` gives ``T_world_cam``. With ``exposure_s > 0`` and several
-    sub-frames the image integrates the exposure, otherwise it is the mid-exposure instant.
+    Global shutter: mid-exposure, t_s + exposure_s/2. Rolling shutter: the row v through the
+    target's true centre is read from t_s + v·readout_s/H, so the instant is
+    t_s + v·readout_s/H + exposure_s/2, with v the row at that instant (a fixed point, found by
+    iteration: the target moves a fraction of a row per iteration's change of time).
+    """
+    t = t_s + 0.5 * config.exposure_s
+    if config.readout_s <= 0:
+        return t
+    K, lens, rows = config.intrinsics, config.lens, config.height
+    for _ in range(4):
+        T_cam = camera_fn(t)[1]
+        p = T_cam[:3, :3].T @ (target_fn(t)[:3, 3] - T_cam[:3, 3])
+        v = project(p, K, lens)[0, 1] if p[2] > 0 else 0.5 * (rows - 1)
+        t = t_s + min(max(v, 0.0), rows - 1) * config.readout_s / rows + 0.5 * config.exposure_s
+    return t
+
+
+def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
+    """The image of the frame exposed from ``t_s`` (before sensor noise) and its state at the truth time.
+
+    ``camera_fn(t) -> (q, T_world_cam)`` gives the joint angles and the camera pose at any instant
+    of the exposure (:func:`gimbal_lab.mount.exposure_pose_fn`). With ``exposure_s > 0`` the image
+    integrates the exposure (``blur``: several full renders, or the fast warped layers with a
+    global or rolling shutter); otherwise it is the single instant ``t_s``.
 
     Returns
     -------
-    image, q, T_world_cam, T_world_target
-        ``q`` and the poses at the mid-exposure instant ``t_s + exposure_s / 2``.
+    image, q, T_world_cam, T_world_target, t_truth_s
+        ``q`` and the poses at the truth instant (:func:`truth_time`: mid-exposure, or the instant
+        the target's row was read).
     """
-    half_exposure = 0.5 * config.exposure_s
     path, phase = config.path, config.start_phase_s
-    q = q0 + qd * half_exposure
-    T_world_cam = camera_pose(q)
-    T_world_target = target_pose(path, t_s + half_exposure + phase)
-    if config.exposure_s > 0 and config.n_subframes > 1:
-        def pose_fn(t):
-            return camera_pose(q0 + qd * (t - t_s)), target_pose(path, t + phase)
+    target_fn = lambda t: target_pose(path, t + phase)
+    t_truth = truth_time(config, t_s, camera_fn, target_fn)
+    q, T_world_cam = camera_fn(t_truth)
+    T_world_target = target_fn(t_truth)
 
+    def pose_fn(t):
+        return camera_fn(t)[1], target_fn(t)
+
+    if config.exposure_s > 0 and config.blur == "fast":
+        image = renderer.render_motion(pose_fn, t_s, config.exposure_s, config.readout_s)
+    elif config.exposure_s > 0 and config.n_subframes > 1:
         image = renderer.render_exposure(pose_fn, t_s, config.exposure_s, config.n_subframes)
     else:
         image = renderer.render(T_world_cam, T_world_target)
-    return image, q, T_world_cam, T_world_target
+    return image, q, T_world_cam, T_world_target, t_truth
+
+
+def image_motion(config: TrackingConfig, t_s: float, camera_fn, n: int = 33) -> tuple[float, float]:
+    """The target's blur streak (px) and the camera's rotation (rad) over the exposure from ``t_s``.
+
+    The streak is the length of the path the target's true centre draws on the image during the
+    exposure, sampled at ``n`` instants (for a rolling shutter: over the exposure of the target's
+    row). The camera's rotation is the largest angle between its orientation at the exposure's
+    start and at any sampled instant (pointing jitter within one frame).
+    """
+    if config.exposure_s <= 0:
+        return 0.0, 0.0
+    path, phase = config.path, config.start_phase_s
+    target_fn = lambda t: target_pose(path, t + phase)
+    t0 = truth_time(config, t_s, camera_fn, target_fn) - 0.5 * config.exposure_s
+    uv, R0, angle = [], None, 0.0
+    for t in np.linspace(t0, t0 + config.exposure_s, n):
+        T_cam = camera_fn(t)[1]
+        p = T_cam[:3, :3].T @ (target_fn(t)[:3, 3] - T_cam[:3, 3])
+        uv.append(project(p, config.intrinsics, config.lens)[0] if p[2] > 0 else (math.nan, math.nan))
+        if R0 is None:
+            R0 = T_cam[:3, :3]
+        else:
+            c = (np.trace(R0.T @ T_cam[:3, :3]) - 1.0) / 2.0
+            angle = max(angle, math.acos(min(1.0, max(-1.0, c))))
+    streak = float(np.sum(np.hypot(*np.diff(np.asarray(uv), axis=0).T)))
+    return streak, angle
 
 
 def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> TrackingResult:
@@ -427,8 +549,9 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     -----
     Paper §4.1 and Fig. 5. Same config (seed included) → identical frame table.
     """
-    from .control import AxisPlant, GimbalAxis, ImageLoop, RateLoop
+    from .control import ImageLoop
     from .kinematics import GimbalKinematics
+    from .mount import GimbalMount
     from .scene import add_sensor_noise
 
     if not isinstance(config, TrackingConfig):
@@ -439,32 +562,28 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     rng = np.random.default_rng(config.seed)
     K = config.intrinsics
     lens = config.lens
-    half_exposure = 0.5 * config.exposure_s
     estimate = _Estimator(config)
     kin = GimbalKinematics.default()
-    T_world_base = world_T_base(kin)
 
     dt_s = 1.0 / config.inner_rate_hz
-    plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
-    axes = [GimbalAxis(p, dt_s) for p in plants]
-    rate_loops = [RateLoop(p, dt_s=dt_s) for p in plants]
+    n_frames = config.n_frames
+    n_steps = int(round(n_frames / config.fps * config.inner_rate_hz))
+    frame_steps = np.round(np.arange(n_frames + 1) * config.inner_rate_hz / config.fps).astype(int)
+    frame_steps[-1] = n_steps
+    body = config.body
+    gyro_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 2]))
+    mount = GimbalMount(kin, body, config.mount, dt_s, n_steps, config.gyro_noise_rad_s_rthz, gyro_rng)
     pixel_lens = lens if config.calibrated else None
     outer = _outer_loop(config, kin, pixel_lens)
     image_loop = outer if isinstance(outer, ImageLoop) else None
     predictive = None if (outer is None or image_loop is not None) else outer
 
-    n_frames = config.n_frames
-    n_steps = int(round(n_frames / config.fps * config.inner_rate_hz))
-    frame_steps = np.round(np.arange(n_frames + 1) * config.inner_rate_hz / config.fps).astype(int)
-    frame_steps[-1] = n_steps
     pending: deque = deque()
     rate_ref = np.zeros(3)
     rows = []
     timing = {"render_s": 0.0, "detect_s": 0.0, "total_s": 0.0}
     t_start = time.perf_counter()
-
-    def camera_pose(q):
-        return T_world_base @ kin.forward(q, check_limits=False)
+    window_s = config.exposure_s + config.readout_s
 
     frames = range(n_frames)
     if progress:
@@ -473,17 +592,19 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         frames = tqdm(frames, desc=config.label, unit="frame")
     for k in frames:
         t_s = k / config.fps
-        t_mid = t_s + half_exposure
-        q0 = np.array([a.angle_rad for a in axes])
-        qd = np.array([a.rate_rad_s for a in axes])
+        q0 = mount.q
+        qd = mount.qd
+        w0 = mount.smooth_axis_rates
+        camera_fn = mount.exposure_pose_fn(t_s, t_s + window_s)
 
         t0 = time.perf_counter()
-        image, q, T_world_cam, T_world_target = render_frame(config, renderer, camera_pose, q0, qd, t_s)
+        image, q, T_world_cam, T_world_target, t_mid = render_frame(config, renderer, camera_fn, t_s)
         image = add_sensor_noise(image, config.noise_std, rng)
         t1 = time.perf_counter()
         uv, p_cam, p_cam_alt = estimate(image)
         timing["detect_s"] += time.perf_counter() - t1
         timing["render_s"] += t1 - t0
+        streak_px, cam_turn_rad = image_motion(config, t_s, camera_fn)
 
         p_true = T_world_target[:3, 3]
         R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
@@ -503,7 +624,8 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
             (k, t_s, t_mid, int(t_mid // config.period_s), detected, *p_true, *p_est, *p_cam_true, *p_cam_est,
              d_true, d_est, d_est - d_true, abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
              *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
-             alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true))
+             alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true),
+             *q0, *w0, streak_px, math.degrees(cam_turn_rad))
         )
 
         # Outer loop: the measurement of frame k reaches it latency_frames frames later.
@@ -518,12 +640,8 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         if predictive is not None:
             rate_ref = predictive.command(t_s, q0)
 
-        # Inner loops and axis dynamics until the next frame.
-        for _ in range(frame_steps[k + 1] - frame_steps[k]):
-            for i in range(3):
-                axis = axes[i]
-                torque = rate_loops[i].update(rate_ref[i], axis.measured_rate_rad_s)
-                axis.step(torque)
+        # Inner loops and axis dynamics (and the body) until the next frame.
+        mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
 
     timing["total_s"] = time.perf_counter() - t_start
     if own_renderer:

@@ -184,11 +184,12 @@ def test_render_frame_takes_the_mid_exposure_state_and_integrates_over_the_expos
     for exposure, n, kind in ((0.0, 1, "sharp"), (1 / 60, 4, "blurred")):
         config = TrackingConfig(mode="active", exposure_s=exposure, n_subframes=n, start_phase_s=0.7)
         renderer = Recorder()
-        image, q, T_cam, T_target = render_frame(config, renderer, camera_pose, q0, qd, 1.5)
+        camera_fn = lambda t: (q0 + qd * (t - 1.5), camera_pose(q0 + qd * (t - 1.5)))
+        image, q, T_cam, T_target, t_truth = render_frame(config, renderer, camera_fn, 1.5)
         t_mid = 1.5 + exposure / 2
-        assert image == kind
-        np.testing.assert_array_equal(q, q0 + qd * exposure / 2)
-        np.testing.assert_array_equal(T_cam, camera_pose(q0 + qd * exposure / 2))
+        assert image == kind and t_truth == t_mid
+        np.testing.assert_allclose(q, q0 + qd * exposure / 2, rtol=0, atol=1e-15)  # (1.5 + e/2) − 1.5 rounds
+        np.testing.assert_allclose(T_cam, camera_pose(q0 + qd * exposure / 2), rtol=0, atol=1e-15)
         np.testing.assert_allclose(T_target, target_pose(config.path, t_mid + 0.7), atol=1e-15)
         if kind == "blurred":
             for j, (T_c, T_t) in enumerate(renderer.calls[0][1]):

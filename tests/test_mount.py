@@ -1,0 +1,191 @@
+"""The camera mount on a moving body (gimbal_lab.mount) against python-control, scipy and geometry."""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from gimbal_lab.control import AxisPlant
+from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.mount import (GYRO_NOISE_RAD_S_RTHZ, GimbalMount, attitude_error_rad, exposure_pose_fn,
+                              stabilised_attitude_transfer)
+from gimbal_lab.platform import BodyMotion
+
+KIN = GimbalKinematics.default()
+DT = 1e-3
+
+
+def _run(mount, body, seconds, every=5, rate_ref=None, **kwargs):
+    """Step a mount; sample the camera's world attitude error, the axis angles and b every ``every`` steps."""
+    n = int(round(seconds / DT))
+    m = GimbalMount(KIN, body, mount, DT, n, **kwargs)
+    t, err, axis_angle, body_angle = [], [], [], np.zeros(3)
+    body_angles = []
+    for k in range(0, n, every):
+        for j in range(every):
+            body_angle = body_angle + m._base_rates(m.q, k + j) * DT
+            m.advance(1, rate_ref)
+        t.append(m.t_s)
+        err.append(attitude_error_rad(m.T_world_cam(m.q, m.t_s)[:3, :3], m.R_world_home))
+        axis_angle.append([a.angle_rad for a in m.axes])
+        body_angles.append(body_angle)
+    return m, np.array(t), np.array(err), np.array(axis_angle), np.array(body_angles)
+
+
+@pytest.fixture(scope="module")
+def hover_stabilised():
+    return _run("stabilised", BodyMotion.hover(seed=3), 24.0, every=1)
+
+
+def test_stabilised_mount_attenuates_sway_as_the_loops_sensitivity_predicts(hover_stabilised):
+    """Camera attitude error = body rotation (in the joint basis) through the closed loop's transfer.
+
+    The prediction filters the body's own rotation about each joint axis with
+    stabilised_attitude_transfer (python-control, Padé delay) in the frequency domain; the run is
+    the nonlinear discrete loop with the exact kinematics. Bounds: each axis within 5 %, the camera's
+    total world attitude error within 10 % (the issue's bound), correlation > 0.99 on the pitch axis.
+    """
+    m, t, err, axis_angle, body_angle = hover_stabilised
+    keep = (t > 4.0) & (t < t[-1] - 4.0)  # the start's transient and the FFT's wrap-around
+    predicted = np.empty_like(axis_angle)
+    for i, name in enumerate(("yaw", "roll", "pitch")):
+        T = stabilised_attitude_transfer(AxisPlant.storm32(name), DT)
+        x = body_angle[:, i] - np.linspace(body_angle[0, i], body_angle[-1, i], len(t))
+        f = np.fft.rfftfreq(len(t), t[1] - t[0])
+        predicted[:, i] = np.fft.irfft(np.fft.rfft(x) * T(2j * np.pi * f), len(t))
+        ratio = axis_angle[keep, i].std() / predicted[keep, i].std()
+        assert abs(ratio - 1) < 0.05, (name, ratio)
+    # camera axes at home: x right = pitch axis, y down = yaw axis, z forward = roll axis
+    measured_total = np.sqrt(np.sum(err[keep].var(axis=0)))
+    predicted_total = np.sqrt(np.sum(predicted[keep].var(axis=0)))
+    assert abs(measured_total / predicted_total - 1) < 0.10, (measured_total, predicted_total)
+    assert abs(np.corrcoef(err[keep, 0], predicted[keep, 2])[0, 1]) > 0.99
+    # and the sway itself was 2° / 1° RMS: the mount removes all but a few thousandths of a degree
+    assert math.degrees(measured_total) < 0.005
+
+
+def test_the_loop_transfer_matches_a_single_axis_driven_by_a_sinusoid():
+    """stabilised_attitude_transfer's gain against the discrete axis at 1.5 and 5 Hz, within 3 %."""
+    from gimbal_lab.control import GimbalAxis, RateLoop
+
+    plant = AxisPlant.storm32("pitch")
+    T = stabilised_attitude_transfer(plant, DT)
+    for f in (1.5, 5.0):
+        axis, loop, estimate, amp = GimbalAxis(plant, DT), RateLoop(plant, dt_s=DT), 0.0, 0.01
+        out, ts = [], []
+        for k in range(int(6 / DT)):
+            b = amp * 2 * math.pi * f * math.cos(2 * math.pi * f * (k + 0.5) * DT)
+            measured = axis.measured_rate_rad_s
+            r, estimate = -20.0 * estimate, estimate + measured * DT
+            axis.step(loop.update(r, measured), plant.damping_Nms_per_rad * b)
+            out.append(axis.angle_rad)
+            ts.append((k + 1) * DT)
+        ts, out = np.array(ts), np.array(out)
+        keep = ts > 2
+        X = np.column_stack([np.sin(2 * np.pi * f * ts), np.cos(2 * np.pi * f * ts)])[keep]
+        gain = np.hypot(*np.linalg.lstsq(X, out[keep], rcond=None)[0]) / amp
+        assert gain == pytest.approx(abs(T(2j * np.pi * f)), rel=0.03)
+
+
+def test_fixed_mount_moves_rigidly_with_the_body():
+    body = BodyMotion.hover(seed=1, vibration=True)
+    m = GimbalMount(KIN, body, "fixed", DT, 200)
+    m.advance(137)
+    T = m.T_world_cam(m.q, m.t_s)
+    expected = body.T_world_body(0.137) @ KIN.T_body_base @ KIN.forward(np.zeros(3))
+    np.testing.assert_allclose(T, expected, atol=1e-12)
+    assert np.all(m.q == 0) and np.all(m.qd == 0)
+
+
+def test_joint_angles_follow_the_body_so_that_an_inertially_still_camera_stays_still():
+    """With the axes forced to zero inertial rate, q = −∫b keeps the camera's world attitude fixed.
+
+    Exact kinematics check: a flight (bank up to 5.8°) with sway; the camera may not turn by more than
+    2e-6 rad over 3 s although the body turns by degrees.
+    """
+    body = BodyMotion.flying(seed=2)
+    n = 3000
+    m = GimbalMount(KIN, body, "active", DT, n)
+    for axis in m.axes:  # infinitely stiff axes: freeze their inertial state
+        axis.step = lambda torque, disturbance=0.0: None
+    R0 = m.T_world_cam(m.q, 0.0)[:3, :3]
+    worst, body_turn = 0.0, 0.0
+    for k in range(0, n, 50):
+        m.advance(50)
+        R = m.T_world_cam(m.q, m.t_s)[:3, :3]
+        worst = max(worst, np.linalg.norm(attitude_error_rad(R, R0)))
+        body_turn = max(body_turn, np.linalg.norm(attitude_error_rad(body.T_world_body(m.t_s)[:3, :3],
+                                                                     body.T_world_body(0.0)[:3, :3])))
+    assert body_turn > math.radians(2.0)
+    assert worst < 2e-6
+
+
+def test_exposure_pose_fn_matches_the_stepped_mount_within_an_exposure():
+    """The in-exposure pose (mean w held, body exact) against the mount stepped at 1 kHz.
+
+    Bound 0.02° (0.19 px at the study's 554 px focal length): what the extrapolation leaves out is
+    the axes' residual answer to the 120 Hz vibration (±0.1 rad/s, ±1.3e-4 rad), against a body that
+    turns by tenths of a degree within the same 17 ms.
+    """
+    body = BodyMotion.hover(seed=5, vibration=True)
+    m = GimbalMount(KIN, body, "stabilised", DT, 2000)
+    m.advance(1000)
+    camera_fn = m.exposure_pose_fn(m.t_s, m.t_s + 0.017)
+    t0 = m.t_s
+    m.advance(17)
+    q_fn, T_fn = camera_fn(t0 + 0.017)
+    angle = np.linalg.norm(attitude_error_rad(T_fn[:3, :3], m.T_world_cam(m.q, m.t_s)[:3, :3]))
+    assert math.degrees(angle) < 0.02
+    # while the body itself turned by far more within those 17 ms (vibration at 120 Hz)
+    turn = np.linalg.norm(attitude_error_rad(body.T_world_body(t0)[:3, :3], body.T_world_body(t0 + 0.017)[:3, :3]))
+    assert math.degrees(turn) > 0.05
+
+
+def test_still_body_reduces_to_the_paper_axes_exactly():
+    body = BodyMotion.static()
+    a = GimbalMount(KIN, body, "active", DT, 500)
+    from gimbal_lab.control import GimbalAxis, RateLoop
+
+    plants = [AxisPlant.storm32(x) for x in ("yaw", "roll", "pitch")]
+    axes = [GimbalAxis(p, DT) for p in plants]
+    loops = [RateLoop(p, dt_s=DT) for p in plants]
+    ref = np.array([0.3, -0.2, 0.5])
+    a.advance(500, ref)
+    for _ in range(500):
+        for i in range(3):
+            axes[i].step(loops[i].update(ref[i], axes[i].measured_rate_rad_s))
+    assert np.array_equal(a.q, [x.angle_rad for x in axes])
+
+
+def test_gyro_noise_has_the_stated_density_through_the_low_pass():
+    """Welch PSD of the noise the stabilised loop sees, below the 160 Hz corner, within 10 % of 0.005 °/s/√Hz."""
+    rng = np.random.default_rng(0)
+    m = GimbalMount(KIN, BodyMotion.static(), "stabilised", DT, 60_000, GYRO_NOISE_RAD_S_RTHZ, rng)
+    f, P = scipy.signal.welch(m._noise[:, 1], fs=1 / DT, nperseg=4096)
+    band = (f > 5) & (f < 30)
+    density = math.sqrt(np.mean(P[band]))
+    assert density == pytest.approx(GYRO_NOISE_RAD_S_RTHZ, rel=0.10)
+    # above the corner: the gyro's low-pass, discretised exactly at 1 kHz (scipy's freqz as the oracle)
+    a = math.exp(-DT / AxisPlant.storm32("roll").gyro_tau_s)
+    high = (f > 250) & (f < 450)
+    _, h = scipy.signal.freqz([1 - a], [1, -a], worN=f[high], fs=1 / DT)
+    ratio = np.mean(P[high]) / np.mean(GYRO_NOISE_RAD_S_RTHZ**2 * np.abs(h) ** 2)
+    assert ratio == pytest.approx(1.0, rel=0.10)
+    assert np.mean(P[high]) < 0.6 * GYRO_NOISE_RAD_S_RTHZ**2  # the low-pass is there
+
+
+def test_bad_inputs_are_refused():
+    body = BodyMotion.static()
+    with pytest.raises(ValueError, match="mount"):
+        GimbalMount(KIN, body, "gimbal", DT, 10)
+    with pytest.raises(TypeError, match="BodyMotion"):
+        GimbalMount(KIN, "still", "fixed", DT, 10)
+    with pytest.raises(ValueError, match="rng"):
+        GimbalMount(KIN, body, "stabilised", DT, 10, gyro_noise_rad_s_rthz=1e-4)
+    with pytest.raises(ValueError, match="gyro_noise"):
+        GimbalMount(KIN, body, "stabilised", DT, 10, gyro_noise_rad_s_rthz=-1.0)
+    m = GimbalMount(KIN, body, "active", DT, 10)
+    with pytest.raises(ValueError, match="steps"):
+        m.advance(11)
+    assert exposure_pose_fn(KIN, body, "fixed", [0.1, 0.2, 0.3], [1, 1, 1], 0.0, 0.01)(0.005)[0].tolist() == [0, 0, 0]
