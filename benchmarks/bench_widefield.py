@@ -1,0 +1,97 @@
+"""Rendering speed of :class:`gimbal_lab.widefield.WideFieldRenderer` against the pinhole path.
+
+Prints ms/frame and frames/s (median over ``--frames`` frames, after warm-up, the cases taking
+turns) for: the study's 640 × 480 pinhole ``SceneRenderer.render``, and the 120°, 150° and 185°
+fisheyes of the lens sweep; for the 185° lens also its two stages, the faces (render and linear
+decode) and the resampling (remap and encode). Ratios to the pinhole path are taken in this run.
+
+Usage::
+
+    python benchmarks/bench_widefield.py [--frames 50] [--target sphere|aruco]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import numpy as np
+
+from gimbal_lab.camera import Intrinsics, KannalaBrandt
+from gimbal_lab.scene import SceneRenderer
+from gimbal_lab.trajectories import R_WORLD_MARKER, Trajectory
+from gimbal_lab.widefield import WideFieldRenderer
+
+T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]])
+FRAME_DT_S = 1.0 / 30.0
+FISHEYE_HFOV_DEG = (120.0, 150.0, 185.0)
+
+
+def _pose_fn(trajectory: Trajectory):
+    def pose_fn(t_s):
+        T = np.eye(4)
+        T[:3, :3] = R_WORLD_MARKER
+        T[:3, 3] = trajectory.position(t_s)
+        return T_WORLD_CAM, T
+
+    return pose_fn
+
+
+def _interleaved_medians_ms(steps: dict, n_frames: int, n_warmup: int = 3) -> dict[str, float]:
+    """Median ms per call of each step; the steps take turns so that load changes on a shared
+    machine affect every case alike (their ratios stay meaningful)."""
+    for i in range(n_warmup):
+        for step in steps.values():
+            step(i)
+    times = {name: np.empty(n_frames) for name in steps}
+    for i in range(n_frames):
+        for name, step in steps.items():
+            t0 = time.perf_counter()
+            step(i)
+            times[name][i] = time.perf_counter() - t0
+    return {name: 1e3 * float(np.median(t)) for name, t in times.items()}
+
+
+def main(argv=None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=50, help="frames per case")
+    parser.add_argument("--target", choices=("sphere", "aruco"), default="sphere")
+    args = parser.parse_args(argv)
+
+    pose_fn = _pose_fn(Trajectory.circular())
+    renderers = {"pinhole 60°": SceneRenderer(Intrinsics.default(), target=args.target)}
+    for hfov_deg in FISHEYE_HFOV_DEG:
+        lens, f = KannalaBrandt.equidistant_for_fov(640, math.radians(hfov_deg))
+        t0 = time.perf_counter()
+        wide = WideFieldRenderer(Intrinsics(f, f, 319.5, 239.5, 640, 480), lens, target=args.target)
+        wide.render(*pose_fn(0.0))  # shader compilation
+        faces = ", ".join(f"{x.name} {x.intrinsics.width}x{x.intrinsics.height}" for x in wide.faces)
+        n_px = sum(x.intrinsics.width * x.intrinsics.height for x in wide.faces)
+        print(f"fisheye {hfov_deg:g}°: faces {faces}; {n_px / (640 * 480):.2f}x the output's pixels; "
+              f"create + first frame {time.perf_counter() - t0:.2f} s")
+        renderers[f"fisheye {hfov_deg:g}°"] = wide
+    steps = {f"render ({name})": (lambda i, r=r: r.render(*pose_fn(i * FRAME_DT_S))) for name, r in renderers.items()}
+    widest = renderers[f"fisheye {FISHEYE_HFOV_DEG[-1]:g}°"]
+    atlas = widest._render_faces(*pose_fn(0.0)).copy()
+    steps["185° stage: faces + decode"] = lambda i: widest._render_faces(*pose_fn(i * FRAME_DT_S))
+    steps["185° stage: remap + encode"] = lambda i: widest._resample(atlas)
+    try:
+        results = _interleaved_medians_ms(steps, args.frames)
+    finally:
+        for r in renderers.values():
+            r.close()
+
+    base = results["render (pinhole 60°)"]
+    print(f"\n{args.target}, 640x480, median of {args.frames} frames")
+    print(f"{'case':32s} {'ms/frame':>9s} {'x pinhole':>10s} {'frames/s':>9s}")
+    for name, ms in results.items():
+        print(f"{name:32s} {ms:9.1f} {ms / base:10.2f} {1e3 / ms:9.1f}")
+    ratio = results[f"render (fisheye {FISHEYE_HFOV_DEG[-1]:g}°)"] / base
+    print(f"\n185° wide-field frame / pinhole frame: {ratio:.2f} "
+          f"({1e3 / results['render (fisheye 185°)']:.1f} vs {1e3 / base:.1f} frames/s)")
+    return results
+
+
+if __name__ == "__main__":
+    main()
