@@ -306,10 +306,13 @@ def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: floa
     w = np.asarray(w, dtype=float)
     if body.sway is None and body.vibration is None and body.flight is None:
         return lambda t: (q0 + w * (t - t0_s), pose(q0 + w * (t - t0_s), t))
-    grid = np.linspace(t0_s, max(t1_s, t0_s + 1e-9), max(int(n_grid), 2))
+    # a margin either side: a renderer may sample its motion a little outside the exposure
+    margin = 0.25 * max(t1_s - t0_s, 0.004)
+    grid = np.linspace(t0_s - margin, max(t1_s, t0_s + 1e-9) + margin, max(int(n_grid), 2))
     J = T_body_base[:3, :3] @ kinematics.angular_jacobian(q0, frame="base", check_limits=False)
     b = np.linalg.solve(J, body.angular_rate_body(grid).T).T
     integral = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (b[1:] + b[:-1]) * np.diff(grid)[:, None], axis=0)])
+    integral -= np.array([np.interp(t0_s, grid, integral[:, i]) for i in range(3)])  # zero at t0
 
     def camera_fn(t):
         q = q0 + w * (t - t0_s) - np.array([np.interp(t, grid, integral[:, i]) for i in range(3)])
