@@ -10,6 +10,24 @@ from gimbal_lab.camera import BrownConrady, Intrinsics
 from gimbal_lab.plotting import camera as camera_plots
 
 
+@pytest.fixture(autouse=True)
+def live_widgets(monkeypatch):
+    """These tests drive the widgets themselves (the suite's conftest switches them off for notebooks)."""
+    monkeypatch.setenv("GIMBAL_LAB_WIDGETS", "1")
+
+
+def test_widgets_switched_off_draw_once_with_the_initial_values(monkeypatch):
+    from gimbal_lab.plotting import interactive
+
+    ipywidgets = pytest.importorskip("ipywidgets")
+    calls = []
+    monkeypatch.setenv("GIMBAL_LAB_WIDGETS", "0")
+    assert interactive(lambda a, b: calls.append((a, b)), a=ipywidgets.IntSlider(value=3), b=2.5) is None
+    assert calls == [(3, 2.5)]
+    monkeypatch.setenv("GIMBAL_LAB_WIDGETS", "1")
+    assert isinstance(interactive(lambda a: calls.append(a), a=ipywidgets.IntSlider(value=4)), ipywidgets.interactive)
+
+
 def test_distortion_explorer_starts_at_the_given_lens_and_keeps_its_other_coefficients(monkeypatch):
     pytest.importorskip("ipywidgets")
     drawn = []

@@ -7,6 +7,6 @@ Submodules group the figures by topic: ``camera``, ``kinematics``, ``scene``, ``
 """
 
 from . import camera, control, detection, kinematics, scene, study
-from ._common import save_figure
+from ._common import interactive, save_figure
 
-__all__ = ["camera", "control", "detection", "kinematics", "scene", "study", "save_figure"]
+__all__ = ["camera", "control", "detection", "kinematics", "scene", "study", "save_figure", "interactive"]

@@ -28,3 +28,20 @@ def save_figure(fig, name: str, out_dir: str | os.PathLike | None = None, dpi: i
         fig.savefig(path, dpi=dpi, bbox_inches="tight")
         paths.append(path)
     return paths if formats else paths[0]
+
+
+def interactive(fn, **controls):
+    """``ipywidgets.interactive(fn, **controls)``, or one static call of ``fn`` when widgets are off.
+
+    With ``GIMBAL_LAB_WIDGETS=0`` (the test suite sets it, see ``conftest.py``) ``fn`` is called
+    once with every control's initial value and None is returned: the notebook draws the same
+    figure without live widgets. Under nbmake, notebooks whose cells displayed live widgets were
+    seen to stall now and then (the kernel idle, its reply never received) until the cell timeout;
+    in a live JupyterLab the widgets are unchanged (``scripts/browser_check.py`` drives them).
+    """
+    if os.environ.get("GIMBAL_LAB_WIDGETS", "1") == "0":
+        fn(**{name: getattr(control, "value", control) for name, control in controls.items()})
+        return None
+    import ipywidgets
+
+    return ipywidgets.interactive(fn, **controls)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._common import interactive
+
 from ..camera import BrownConrady, Intrinsics, distort_pixels
 
 __all__ = [
@@ -243,7 +245,7 @@ def distortion_explorer(intrinsics: Intrinsics, lens: BrownConrady | None = None
 
     Returns
     -------
-    ipywidgets.interactive
+    ipywidgets.interactive or None
         Display it in a notebook; in a headless run it renders once with the initial values.
     """
     import dataclasses
@@ -268,7 +270,7 @@ def distortion_explorer(intrinsics: Intrinsics, lens: BrownConrady | None = None
         plt.close(fig)
 
     step = k_range / 100
-    return ipywidgets.interactive(
+    return interactive(
         draw,
         k1=ipywidgets.FloatSlider(value=lens.k1, min=-k_range, max=k_range, step=step, readout_format=".3f"),
         k2=ipywidgets.FloatSlider(value=lens.k2, min=-k_range, max=k_range, step=step, readout_format=".3f"),

@@ -5,6 +5,8 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ._common import interactive
+
 from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
@@ -241,7 +243,7 @@ def run_explorer(results, frame: int | None = None):
 
     Returns
     -------
-    ipywidgets.interactive
+    ipywidgets.interactive or None
         Its ``result`` is the figure's title for the drawn instant.
     """
     import ipywidgets
@@ -278,7 +280,7 @@ def run_explorer(results, frame: int | None = None):
         plt.close(fig)
         return title
 
-    return ipywidgets.interactive(
+    return interactive(
         draw,
         cell=ipywidgets.Dropdown(options=cells, value=cells[0], description="cell"),
         replicate=ipywidgets.Dropdown(options=seeds, value=seeds[0], description="replicate"),
