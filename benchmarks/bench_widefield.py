@@ -20,37 +20,12 @@ import numpy as np
 
 from gimbal_lab.camera import Intrinsics, KannalaBrandt
 from gimbal_lab.scene import SceneRenderer
-from gimbal_lab.trajectories import R_WORLD_MARKER, Trajectory
+from gimbal_lab.trajectories import Trajectory
 from gimbal_lab.widefield import WideFieldRenderer
 
-T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]])
-FRAME_DT_S = 1.0 / 30.0
+from bench_render import FRAME_DT_S, T_WORLD_CAM, _interleaved_medians_ms, _pose_fn  # noqa: E402 (same folder)
+
 FISHEYE_HFOV_DEG = (120.0, 150.0, 185.0)
-
-
-def _pose_fn(trajectory: Trajectory):
-    def pose_fn(t_s):
-        T = np.eye(4)
-        T[:3, :3] = R_WORLD_MARKER
-        T[:3, 3] = trajectory.position(t_s)
-        return T_WORLD_CAM, T
-
-    return pose_fn
-
-
-def _interleaved_medians_ms(steps: dict, n_frames: int, n_warmup: int = 3) -> dict[str, float]:
-    """Median ms per call of each step; the steps take turns so that load changes on a shared
-    machine affect every case alike (their ratios stay meaningful)."""
-    for i in range(n_warmup):
-        for step in steps.values():
-            step(i)
-    times = {name: np.empty(n_frames) for name in steps}
-    for i in range(n_frames):
-        for name, step in steps.items():
-            t0 = time.perf_counter()
-            step(i)
-            times[name][i] = time.perf_counter() - t0
-    return {name: 1e3 * float(np.median(t)) for name, t in times.items()}
 
 
 def main(argv=None) -> dict[str, float]:

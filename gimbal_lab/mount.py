@@ -40,7 +40,7 @@ from .control import AxisPlant, GimbalAxis, RateLoop
 from .platform import BodyMotion
 
 __all__ = ["MOUNTS", "ATTITUDE_GAIN_PER_S", "GYRO_NOISE_RAD_S_RTHZ", "GimbalMount", "attitude_error_rad",
-           "exposure_pose_fn",
+           "exposure_pose_fn", "camera_pose",
            "stabilised_attitude_transfer"]
 
 MOUNTS = ("fixed", "stabilised", "active")
@@ -221,7 +221,7 @@ class GimbalMount:
 
     def T_world_cam(self, q, t_s: float) -> np.ndarray:
         """Camera pose in the world for joint angles ``q`` at time ``t_s`` (the body's pose then)."""
-        return self.body.T_world_body(t_s) @ self._T_body_base @ self.kinematics.forward(q, check_limits=False)
+        return camera_pose(self.kinematics, self.body, q, t_s)
 
     def _axis_basis_error(self, q, t_s) -> np.ndarray:
         """The camera's attitude error from home, in the joint basis (small-angle), rad."""
@@ -282,6 +282,11 @@ class GimbalMount:
                                 n_grid)
 
 
+def camera_pose(kinematics, body: BodyMotion, q, t_s: float) -> np.ndarray:
+    """``T_world_cam`` for joint angles ``q`` at time ``t_s``: body pose · mount · gimbal kinematics."""
+    return body.T_world_body(t_s) @ kinematics.T_body_base @ kinematics.forward(q, check_limits=False)
+
+
 def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: float, t1_s: float, n_grid: int = 64):
     """The camera during one exposure: ``camera_fn(t) -> (q, T_world_cam)`` for t in [t0_s, t1_s].
 
@@ -296,9 +301,7 @@ def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: floa
     """
     q0 = np.asarray(q0, dtype=float)
     T_body_base = kinematics.T_body_base
-
-    def pose(q, t):
-        return body.T_world_body(t) @ T_body_base @ kinematics.forward(q, check_limits=False)
+    pose = lambda q, t: camera_pose(kinematics, body, q, t)  # noqa: E731
 
     if mount == "fixed":
         q0 = np.zeros(3)

@@ -502,8 +502,11 @@ def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
     return image, q, T_world_cam, T_world_target, t_truth
 
 
-def image_motion(config: TrackingConfig, t_s: float, camera_fn, n: int = 33) -> tuple[float, float]:
-    """The target's blur streak (px) and the camera's rotation (rad) over the exposure from ``t_s``.
+def image_motion(config: TrackingConfig, t_truth_s: float, camera_fn, n: int = 33) -> tuple[float, float]:
+    """The target's blur streak (px) and the camera's rotation (rad) over the exposure around ``t_truth_s``.
+
+    ``t_truth_s`` is the frame's truth instant (:func:`render_frame` returns it): the middle of the
+    exposure of the target's row.
 
     The streak is the length of the path the target's true centre draws on the image during the
     exposure, sampled at ``n`` instants (for a rolling shutter: over the exposure of the target's
@@ -514,7 +517,7 @@ def image_motion(config: TrackingConfig, t_s: float, camera_fn, n: int = 33) -> 
         return 0.0, 0.0
     path, phase = config.path, config.start_phase_s
     target_fn = lambda t: target_pose(path, t + phase)
-    t0 = truth_time(config, t_s, camera_fn, target_fn) - 0.5 * config.exposure_s
+    t0 = t_truth_s - 0.5 * config.exposure_s
     uv, R0, angle = [], None, 0.0
     for t in np.linspace(t0, t0 + config.exposure_s, n):
         T_cam = camera_fn(t)[1]
@@ -604,7 +607,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         uv, p_cam, p_cam_alt = estimate(image)
         timing["detect_s"] += time.perf_counter() - t1
         timing["render_s"] += t1 - t0
-        streak_px, cam_turn_rad = image_motion(config, t_s, camera_fn)
+        streak_px, cam_turn_rad = image_motion(config, t_mid, camera_fn)
 
         p_true = T_world_target[:3, 3]
         R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
