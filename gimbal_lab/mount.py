@@ -40,7 +40,7 @@ from .control import AxisPlant, GimbalAxis, RateLoop
 from .platform import BodyMotion
 
 __all__ = ["MOUNTS", "ATTITUDE_GAIN_PER_S", "GYRO_NOISE_RAD_S_RTHZ", "GimbalMount", "attitude_error_rad",
-           "exposure_pose_fn", "camera_pose",
+           "exposure_pose_fn", "ExposurePose", "camera_pose",
            "stabilised_attitude_transfer"]
 
 MOUNTS = ("fixed", "stabilised", "active")
@@ -276,18 +276,88 @@ class GimbalMount:
 
     def exposure_pose_fn(self, t0_s: float, t1_s: float, n_grid: int = 64):
         """``camera_fn(t) -> (q, T_world_cam)`` on [t0_s, t1_s] from the state now, taken as the
-        state at ``t0_s`` (a frame's time, which the inner steps meet to within one step;
-        see :func:`exposure_pose_fn`)."""
+        state at ``t0_s`` (a frame's time, which the inner steps meet to within one step): an
+        :class:`ExposurePose`, with ``camera_fn.many(times)`` for arrays (see :func:`exposure_pose_fn`)."""
         return exposure_pose_fn(self.kinematics, self.body, self.mount, self.q, self.smooth_axis_rates, t0_s, t1_s,
                                 n_grid)
 
 
-def camera_pose(kinematics, body: BodyMotion, q, t_s: float) -> np.ndarray:
-    """``T_world_cam`` for joint angles ``q`` at time ``t_s``: body pose · mount · gimbal kinematics."""
-    return body.T_world_body(t_s) @ kinematics.T_body_base @ kinematics.forward(q, check_limits=False)
+def camera_pose(kinematics, body: BodyMotion, q, t_s) -> np.ndarray:
+    """``T_world_cam`` for joint angles ``q`` at time ``t_s``: body pose · mount · gimbal kinematics.
+
+    Parameters
+    ----------
+    kinematics : gimbal_lab.kinematics.GimbalKinematics
+    body : BodyMotion
+    q : array_like, shape (3,) or (N, 3)
+        Joint angles (yaw, roll, pitch), rad: one set for every instant, or one per instant.
+    t_s : float or array_like, shape (N,)
+        Time(s), s; an array evaluates the body once for all instants.
+
+    Returns
+    -------
+    ndarray, shape (4, 4) for a scalar ``t_s``, else (N, 4, 4)
+    """
+    T_world_base = body.T_world_body(t_s) @ kinematics.T_body_base
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        return T_world_base @ kinematics.forward(q, check_limits=False)
+    return np.array([T @ kinematics.forward(q_i, check_limits=False) for T, q_i in zip(T_world_base, q)])
 
 
-def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: float, t1_s: float, n_grid: int = 64):
+class ExposurePose:
+    """The camera during one exposure (built by :func:`exposure_pose_fn`).
+
+    ``camera_fn(t) -> (q, T_world_cam)`` for a scalar time t, s: the joint angles, shape (3,), and
+    the camera pose, (4, 4). :meth:`many` gives the same for an array of times at once.
+
+    Parameters
+    ----------
+    kinematics : gimbal_lab.kinematics.GimbalKinematics
+    body : BodyMotion
+    q0, w : array_like, shape (3,)
+        Joint angles (rad) and the axes' inertial rates (rad/s) at ``t0_s``.
+    t0_s : float
+        The instant of ``q0``, s.
+    grid_s : ndarray, shape (M,), optional
+        Times at which ``integral`` is given, s (None: nothing to subtract, a still body).
+    integral : ndarray, shape (M, 3), optional
+        ∫ b dτ from ``t0_s``, rad: the body's rate in the joint basis, integrated.
+
+    Notes
+    -----
+    q(t) = q0 + w·(t − t0) − ∫ b dτ, the integral interpolated linearly on ``grid_s`` (held at its
+    end values outside it).
+    """
+
+    def __init__(self, kinematics, body: BodyMotion, q0, w, t0_s: float, grid_s=None, integral=None):
+        self.kinematics, self.body = kinematics, body
+        self.q0, self.w, self.t0_s = np.asarray(q0, dtype=float), np.asarray(w, dtype=float), float(t0_s)
+        self._grid_s, self._integral = grid_s, integral
+
+    def joint_angles(self, t_s) -> np.ndarray:
+        """q at time(s) ``t_s``, rad: shape (3,) for a scalar, (N, 3) for (N,)."""
+        q = self.q0 + (np.asarray(t_s, dtype=float) - self.t0_s)[..., None] * self.w
+        if self._grid_s is None:
+            return q
+        return q - np.stack([np.interp(t_s, self._grid_s, column) for column in self._integral.T], axis=-1)
+
+    def __call__(self, t_s: float):
+        q = self.joint_angles(t_s)
+        return q, camera_pose(self.kinematics, self.body, q, t_s)
+
+    def many(self, times_s):
+        """``(q, T_world_cam)`` at each of ``times_s``: shapes (N, 3) and (N, 4, 4).
+
+        Equal to calling the pose at each time in turn (to round-off), with the body evaluated once.
+        """
+        t = np.asarray(times_s, dtype=float).reshape(-1)
+        q = self.joint_angles(t)
+        return q, camera_pose(self.kinematics, self.body, q, t)
+
+
+def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: float, t1_s: float,
+                     n_grid: int = 64) -> ExposurePose:
     """The camera during one exposure: ``camera_fn(t) -> (q, T_world_cam)`` for t in [t0_s, t1_s].
 
     Within a frame's exposure the axes keep their inertial rates ``w`` (the closed loop passes the
@@ -298,27 +368,22 @@ def exposure_pose_fn(kinematics, body: BodyMotion, mount: str, q0, w, t0_s: floa
     on ``n_grid`` points. A still body gives q0 + w·(t − t0); the fixed mount keeps q = 0.
     ``q0`` and ``w`` are the state at ``t0_s`` (recorded per frame by the closed loop, so a finished
     run's frames can be rendered again exactly).
-    """
-    q0 = np.asarray(q0, dtype=float)
-    T_body_base = kinematics.T_body_base
-    pose = lambda q, t: camera_pose(kinematics, body, q, t)  # noqa: E731
 
+    Returns
+    -------
+    ExposurePose
+        Callable with a scalar time; ``camera_fn.many(times)`` evaluates an array of times at once.
+    """
     if mount == "fixed":
-        q0 = np.zeros(3)
-        return lambda t: (q0, pose(q0, t))
-    w = np.asarray(w, dtype=float)
+        return ExposurePose(kinematics, body, np.zeros(3), np.zeros(3), t0_s)
+    q0 = np.asarray(q0, dtype=float)
     if body.sway is None and body.vibration is None and body.flight is None:
-        return lambda t: (q0 + w * (t - t0_s), pose(q0 + w * (t - t0_s), t))
+        return ExposurePose(kinematics, body, q0, w, t0_s)
     # a margin either side: a renderer may sample its motion a little outside the exposure
     margin = 0.25 * max(t1_s - t0_s, 0.004)
     grid = np.linspace(t0_s - margin, max(t1_s, t0_s + 1e-9) + margin, max(int(n_grid), 2))
-    J = T_body_base[:3, :3] @ kinematics.angular_jacobian(q0, frame="base", check_limits=False)
+    J = kinematics.T_body_base[:3, :3] @ kinematics.angular_jacobian(q0, frame="base", check_limits=False)
     b = np.linalg.solve(J, body.angular_rate_body(grid).T).T
     integral = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (b[1:] + b[:-1]) * np.diff(grid)[:, None], axis=0)])
     integral -= np.array([np.interp(t0_s, grid, integral[:, i]) for i in range(3)])  # zero at t0
-
-    def camera_fn(t):
-        q = q0 + w * (t - t0_s) - np.array([np.interp(t, grid, integral[:, i]) for i in range(3)])
-        return q, pose(q, t)
-
-    return camera_fn
+    return ExposurePose(kinematics, body, q0, w, t0_s, grid, integral)

@@ -92,6 +92,7 @@ class ShapedNoise:
         scale = self.rms / math.sqrt(0.5 * float(np.sum(amp * amp))) if self.rms > 0 else 0.0
         self.amplitude = amp * scale
         self._omega = 2.0 * np.pi * self.freq_hz
+        self._sin_phase = np.sin(self.phase)
 
     def psd(self, f_hz) -> np.ndarray:
         """One-sided power spectral density of the process, unit²/Hz (analytic, for checks).
@@ -114,7 +115,7 @@ class ShapedNoise:
         for start in range(0, flat.size, 4096):  # chunks keep the (times × components) matrix small
             arg = np.outer(flat[start:start + 4096], self._omega) + self.phase
             if derivative == -1:
-                out[start:start + 4096] = (np.sin(arg) - np.sin(self.phase)) @ (self.amplitude / self._omega)
+                out[start:start + 4096] = (np.sin(arg) - self._sin_phase) @ (self.amplitude / self._omega)
             elif derivative == 0:
                 out[start:start + 4096] = np.cos(arg) @ self.amplitude
             elif derivative == 1:
@@ -372,8 +373,8 @@ class BodyMotion:
         return cls(sway=HoverSway(), flight=WaypointFlight(), seed=seed)
 
     # ------------------------------------------------------------------------------------------
-    def _vibration(self, t, derivative):
-        """Per-axis vibration angle (derivative 0) or its rate (1) at times ``t``.
+    def _vibration(self, t, with_rates: bool):
+        """Per-axis vibration angles at times ``t`` and, ``with_rates``, their rates (else empty).
 
         angle = √2·rms·sin(2π f0 (t + ∫₀ᵗ j dτ) + φ0), with j(t) the frequency drift: a slow
         (0.2 Hz) shaped noise of RMS jitter/3, so the instantaneous frequency f0 (1 + j) stays
@@ -381,34 +382,39 @@ class BodyMotion:
         """
         vib = self.vibration
         amp = math.sqrt(2.0) * vib.rms_rad
-        out = []
+        angles, rates = [], []
         for drift, phase0 in self._parts["vibration"]:
             arg = 2.0 * np.pi * vib.frequency_hz * (t + drift.integral(t)) + phase0
-            if derivative == 0:
-                out.append(amp * np.sin(arg))
-            else:
+            angles.append(amp * np.sin(arg))
+            if with_rates:
                 omega = 2.0 * np.pi * vib.frequency_hz * (1.0 + drift.value(t))
-                out.append(amp * omega * np.cos(arg))
-        return out
+                rates.append(amp * omega * np.cos(arg))
+        return angles, rates
 
     def attitude(self, t_s):
         """(yaw, pitch, roll) and their time derivatives at ``t_s``: two arrays of shape (N, 3)."""
+        return self._attitude(t_s, with_rates=True)
+
+    def _attitude(self, t_s, with_rates: bool):
+        """:meth:`attitude`; the rates are None unless ``with_rates`` (a pose needs the angles only)."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float)) + self.time_offset_s
         if not np.all(np.isfinite(t)):
             raise ValueError("t_s must be finite")
         angles = np.zeros((t.size, 3))
-        rates = np.zeros((t.size, 3))
+        rates = np.zeros((t.size, 3)) if with_rates else None
         angles[:, 0] = self.yaw_rad
         if self.sway is not None:
             for i, name in enumerate(("yaw", "pitch", "roll")):
                 noise = self._parts[name][0]
                 angles[:, i] += noise.value(t)
-                rates[:, i] += noise.rate(t)
+                if with_rates:
+                    rates[:, i] += noise.rate(t)
         if self.vibration is not None:
-            values, derivs = self._vibration(t, 0), self._vibration(t, 1)
+            values, derivs = self._vibration(t, with_rates)
             for i in range(3):
                 angles[:, i] += values[i]
-                rates[:, i] += derivs[i]
+                if with_rates:
+                    rates[:, i] += derivs[i]
         if self.flight is not None:
             _, _, acc, jerk = self.flight.kinematics(t)
             # Bank so that the thrust axis R·z_b is parallel to a + g·z (exactly, at yaw 0):
@@ -418,11 +424,12 @@ class BodyMotion:
             norm = np.sqrt(ax * ax + gz * gz)
             angles[:, 1] += np.arctan2(ax, gz)
             angles[:, 2] += np.arctan2(-ay, norm)
-            rates[:, 1] += (jx * gz - ax * jz) / (norm * norm)
-            # d/dt atan(u), u = −a_y/N, dN/dt = (a_x j_x + (g + a_z) j_z)/N
-            u = -ay / norm
-            du = (-jy * norm + ay * (ax * jx + gz * jz) / norm) / (norm * norm)
-            rates[:, 2] += du / (1.0 + u * u)
+            if with_rates:
+                rates[:, 1] += (jx * gz - ax * jz) / (norm * norm)
+                # d/dt atan(u), u = −a_y/N, dN/dt = (a_x j_x + (g + a_z) j_z)/N
+                u = -ay / norm
+                du = (-jy * norm + ay * (ax * jx + gz * jz) / norm) / (norm * norm)
+                rates[:, 2] += du / (1.0 + u * u)
         return angles, rates
 
     def position(self, t_s):
@@ -438,7 +445,7 @@ class BodyMotion:
     def T_world_body(self, t_s) -> np.ndarray:
         """4 × 4 pose at a scalar ``t_s``, or (N, 4, 4) for an array of times."""
         scalar = np.ndim(t_s) == 0
-        angles, _ = self.attitude(t_s)
+        angles, _ = self._attitude(t_s, with_rates=False)
         T = np.tile(np.eye(4), (angles.shape[0], 1, 1))
         T[:, :3, :3] = euler_to_matrix(angles[:, 0], angles[:, 1], angles[:, 2])
         T[:, :3, 3] = self.position(t_s)

@@ -616,7 +616,9 @@ def _overlap_weights(a: np.ndarray, b: np.ndarray, row_start_s: np.ndarray, expo
 class _ExposureMotion:
     """Camera and target motion over [t_lo, t_hi], relative to the instant in its middle.
 
-    ``pose_fn`` is sampled on a uniform grid of knots, one spacing beyond each end; the relative
+    ``pose_fn`` is sampled on a uniform grid of knots, one spacing beyond each end (each new set of
+    knots in one call of ``pose_fn.many(times) -> (T_world_cam (N, 4, 4), T_world_target (N, 4, 4))``
+    when it has that method; ``pose_calls`` counts the calls, ``pose_instants`` the instants); the relative
     motions (rotation vectors and translations of the camera and of the target, both relative to
     the reference instant) are interpolated by quintic splines. The grid halves while the
     quintic and a cubic spline through the same knots disagree by more than ``_MOTION_TOL_PX`` at
@@ -634,7 +636,7 @@ class _ExposureMotion:
         self.t_lo, self.t_hi = t_lo, t_hi
         self.t_ref = 0.5 * (t_lo + t_hi)
         self.T_cam_ref, self.T_target_ref = self._pose(self.t_ref)
-        self.pose_calls = 1
+        self.pose_calls = self.pose_instants = 1
         self._cam_ref = self.T_cam_ref
         self._S_ref_inv = _rigid_inverse(_rigid_inverse(self.T_cam_ref) @ self.T_target_ref)
         # ground z = 0 in the reference camera frame: n·X = d with n = world z seen from the camera
@@ -677,19 +679,30 @@ class _ExposureMotion:
         T_cam, T_target = self._pose_fn(t)
         return _check_pose("T_world_cam", T_cam), _check_pose("T_world_target", T_target)
 
+    def _poses(self, times) -> list:
+        """``_pose`` at each time: through ``pose_fn.many(times)`` in one call when it has one."""
+        self.pose_instants += len(times)
+        many = getattr(self._pose_fn, "many", None)
+        if many is None:
+            self.pose_calls += len(times)
+            return [self._pose(t) for t in times]
+        self.pose_calls += 1
+        T_cam, T_target = many(np.asarray(times, dtype=float))
+        if len(T_cam) != len(times) or len(T_target) != len(times):
+            raise ValueError(f"pose_fn.many gave {len(T_cam)} and {len(T_target)} poses for {len(times)} times")
+        return [(_check_pose("T_world_cam", a), _check_pose("T_world_target", b)) for a, b in zip(T_cam, T_target)]
+
     def _relative(self, times) -> np.ndarray:
         """(len(times), 12): rotation vector and translation of the camera motion, then of the
         target motion, at each time."""
         out = np.empty((len(times), 12))
         rotations = np.empty((len(times), 2, 3, 3))
-        for i, t in enumerate(times):
-            T_cam, T_target = self._pose(t)
+        for i, (T_cam, T_target) in enumerate(self._poses(times)):
             cam_inv = _rigid_inverse(T_cam)
             C = cam_inv @ self._cam_ref
             D = cam_inv @ T_target @ self._S_ref_inv
             rotations[i] = C[:3, :3], D[:3, :3]
             out[i, 3:6], out[i, 9:12] = C[:3, 3], D[:3, 3]
-        self.pose_calls += len(times)
         rv = self._Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_rotvec().reshape(-1, 2, 3)
         out[:, 0:3], out[:, 6:9] = rv[:, 0], rv[:, 1]
         return out
@@ -1169,7 +1182,9 @@ class SceneRenderer:
         pose_fn : callable
             ``pose_fn(t_s) -> (T_world_cam, T_world_target)``, 4 × 4 each, continuous in time. It is
             called at a few knots (about every 1–2.5 ms, see Notes), including up to one knot
-            spacing before ``t_start_s`` and after the last row's exposure ends.
+            spacing before ``t_start_s`` and after the last row's exposure ends. When it has a
+            method ``pose_fn.many(times) -> (T_world_cam, T_world_target)``, shapes (N, 4, 4) each,
+            the knots are sampled through it, all those of a grid at once.
         t_start_s : float
             Start of the exposure of the first row, seconds.
         exposure_s : float
@@ -1198,7 +1213,7 @@ class SceneRenderer:
         centre facing the camera.
 
         *Motion.* pose_fn is sampled at knots (2.5 ms apart or closer, halved while a cubic and
-        the quintic spline through them disagree by more than 1 px; 11 calls for 1/60 s of the
+        the quintic spline through them disagree by more than 1 px; 11 instants for 1/60 s of the
         study's 120 Hz vibration, 19 with a 20 ms readout), and the camera's and target's
         motions relative to t_ref are interpolated between them.
 
@@ -1580,6 +1595,7 @@ class SceneRenderer:
             canvas[u0:u1] = _ENCODE_LUT.take(part.astype(np.uint16))
         self._motion_stats = {
             "pose_calls": motion.pose_calls,
+            "pose_instants": motion.pose_instants,
             "knot_spacing_s": motion.knot_spacing_s,
             "interpolation_error_px": motion.interpolation_error_px,
             "slices": n_slices,

@@ -474,7 +474,9 @@ def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
     """The image of the frame exposed from ``t_s`` (before sensor noise) and its state at the truth time.
 
     ``camera_fn(t) -> (q, T_world_cam)`` gives the joint angles and the camera pose at any instant
-    of the exposure (:func:`gimbal_lab.mount.exposure_pose_fn`). With ``exposure_s > 0`` the image
+    of the exposure (:func:`gimbal_lab.mount.exposure_pose_fn`); when it also offers
+    ``camera_fn.many(times)`` (:class:`gimbal_lab.mount.ExposurePose`), the renderer samples the
+    motion at all its instants at once through it. With ``exposure_s > 0`` the image
     integrates the exposure (``blur``: several full renders, or the fast warped layers with a
     global or rolling shutter); otherwise it is the single instant ``t_s``.
 
@@ -493,6 +495,8 @@ def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
     def pose_fn(t):
         return camera_fn(t)[1], target_fn(t)
 
+    if hasattr(camera_fn, "many"):
+        pose_fn.many = lambda times: (camera_fn.many(times)[1], np.array([target_fn(t) for t in times]))
     if config.exposure_s > 0 and config.blur == "fast":
         image = renderer.render_motion(pose_fn, t_s, config.exposure_s, config.readout_s)
     elif config.exposure_s > 0 and config.n_subframes > 1:
@@ -511,25 +515,27 @@ def image_motion(config: TrackingConfig, t_truth_s: float, camera_fn, n: int = 3
     The streak is the length of the path the target's true centre draws on the image during the
     exposure, sampled at ``n`` instants (for a rolling shutter: over the exposure of the target's
     row). The camera's rotation is the largest angle between its orientation at the exposure's
-    start and at any sampled instant (pointing jitter within one frame).
+    start and at any sampled instant (pointing jitter within one frame). The camera's poses come
+    from ``camera_fn.many(times)`` when it has one (:class:`gimbal_lab.mount.ExposurePose`), else
+    from ``camera_fn(t)`` at each instant.
     """
     if config.exposure_s <= 0:
         return 0.0, 0.0
-    path, phase = config.path, config.start_phase_s
-    target_fn = lambda t: target_pose(path, t + phase)
     t0 = t_truth_s - 0.5 * config.exposure_s
-    uv, R0, angle = [], None, 0.0
-    for t in np.linspace(t0, t0 + config.exposure_s, n):
-        T_cam = camera_fn(t)[1]
-        p = T_cam[:3, :3].T @ (target_fn(t)[:3, 3] - T_cam[:3, 3])
-        uv.append(project(p, config.intrinsics, config.lens)[0] if p[2] > 0 else (math.nan, math.nan))
-        if R0 is None:
-            R0 = T_cam[:3, :3]
-        else:
-            c = (np.trace(R0.T @ T_cam[:3, :3]) - 1.0) / 2.0
-            angle = max(angle, math.acos(min(1.0, max(-1.0, c))))
-    streak = float(np.sum(np.hypot(*np.diff(np.asarray(uv), axis=0).T)))
-    return streak, angle
+    times = np.linspace(t0, t0 + config.exposure_s, n)
+    if hasattr(camera_fn, "many"):
+        T_cam = camera_fn.many(times)[1]
+    else:
+        T_cam = np.array([camera_fn(t)[1] for t in times])
+    R, c = T_cam[:, :3, :3], T_cam[:, :3, 3]
+    p = np.einsum("nji,nj->ni", R, config.path.position(times + config.start_phase_s) - c)  # Rᵀ·(x − c)
+    uv = np.full((n, 2), math.nan)
+    front = p[:, 2] > 0
+    if front.any():
+        uv[front] = project(p[front], config.intrinsics, config.lens)
+    streak = float(np.sum(np.hypot(*np.diff(uv, axis=0).T)))
+    cos_angle = (np.trace(R[0].T @ R[1:], axis1=1, axis2=2) - 1.0) / 2.0
+    return streak, float(np.max(np.arccos(np.clip(cos_angle, -1.0, 1.0)), initial=0.0))
 
 
 def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> TrackingResult:

@@ -189,3 +189,40 @@ def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="steps"):
         m.advance(11)
     assert exposure_pose_fn(KIN, body, "fixed", [0.1, 0.2, 0.3], [1, 1, 1], 0.0, 0.01)(0.005)[0].tolist() == [0, 0, 0]
+
+
+MOTIONS = {
+    "still": BodyMotion.static(),
+    "hover": BodyMotion.hover(seed=4),
+    "vibration": BodyMotion.hover(seed=4, vibration=True),
+    "flight": BodyMotion.flying(seed=4),
+}
+
+
+@pytest.mark.parametrize("motion", sorted(MOTIONS))
+@pytest.mark.parametrize("mount", ["fixed", "stabilised", "active"])
+def test_exposure_pose_many_is_the_scalar_pose_at_each_instant(mount, motion, monkeypatch):
+    """camera_fn.many(times) against camera_fn(t) one instant at a time, 1e-12 (rad and m; the body's
+    sums of sinusoids differ by round-off between one and many instants), with the body evaluated
+    once; instants span the exposure, its margins and beyond (where the joint angles hold)."""
+    body = MOTIONS[motion]
+    q0, w, t0, t1 = np.array([0.05, -0.03, 0.1]), np.array([0.4, -0.2, 0.3]), 1.3, 1.3 + 0.037
+    camera_fn = exposure_pose_fn(KIN, body, mount, q0, w, t0, t1)
+    times = np.linspace(t0 - 0.02, t1 + 0.02, 37)
+    single = [camera_fn(t) for t in times]
+    assert single[0][0].shape == (3,) and single[0][1].shape == (4, 4)
+    calls, T_world_body = [], BodyMotion.T_world_body
+
+    def counted(self, t_s):
+        calls.append(np.shape(t_s))
+        return T_world_body(self, t_s)
+
+    monkeypatch.setattr(BodyMotion, "T_world_body", counted)
+    q, T = camera_fn.many(times)
+    assert calls == [(37,)] and q.shape == (37, 3) and T.shape == (37, 4, 4)
+    np.testing.assert_allclose(q, [s[0] for s in single], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(T, [s[1] for s in single], rtol=0, atol=1e-12)
+    if mount == "fixed":
+        assert np.all(q == 0)
+    else:  # q = q0 + w·(t − t0) − ∫b: at t0 the state itself
+        np.testing.assert_allclose(camera_fn(t0)[0], q0, rtol=0, atol=1e-15)

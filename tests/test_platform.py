@@ -217,3 +217,21 @@ def test_static_body_is_the_papers_still_mount():
 def test_bad_input_is_named(make, message):
     with pytest.raises((ValueError, TypeError), match=message):
         make()
+
+
+@pytest.mark.parametrize("motion", [
+    BodyMotion.static(),
+    BodyMotion.hover(seed=1, vibration=True),
+    BodyMotion(sway=HoverSway(), vibration=Vibration(), flight=WaypointFlight(), seed=3, time_offset_s=2.5),
+], ids=["still", "hover+vibration", "flight+vibration, offset"])
+def test_pose_of_many_instants_is_the_pose_of_each(motion):
+    """T_world_body of an array of times against one call per time (1e-12: the sums of sinusoids
+    round differently as matrix-vector products), and its rotation and origin are attitude()'s
+    angles through euler_to_matrix and position() (exactly: the pose skips the rates)."""
+    t = np.linspace(0.2, 6.0, 29)
+    T = motion.T_world_body(t)
+    np.testing.assert_allclose(T, [motion.T_world_body(x) for x in t], rtol=0, atol=1e-12)
+    angles, _ = motion.attitude(t)
+    np.testing.assert_array_equal(T[:, :3, :3], euler_to_matrix(*angles.T))
+    np.testing.assert_array_equal(T[:, :3, 3], motion.position(t))
+    np.testing.assert_array_equal(T[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
