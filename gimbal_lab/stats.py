@@ -91,16 +91,27 @@ class Verdict:
         return asdict(self)
 
 
-def _pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
+def _same_length(a, b) -> tuple[np.ndarray, np.ndarray]:
     a = np.asarray(a, dtype=float).ravel()
     b = np.asarray(b, dtype=float).ravel()
     if a.shape != b.shape:
         raise ValueError(f"paired samples must have the same length, got {a.size} and {b.size}")
+    return a, b
+
+
+def _pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
+    a, b = _same_length(a, b)
     if a.size < 2:
         raise ValueError(f"a paired comparison needs at least 2 replicates, got {a.size}")
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
         raise ValueError("replicate values must be finite (a replicate without detections has no mean)")
     return a, b
+
+
+def _complete_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
+    a, b = _same_length(a, b)
+    keep = np.isfinite(a) & np.isfinite(b)
+    return a[keep], b[keep]
 
 
 def t_interval(values, confidence: float = 0.95) -> tuple[float, float, float]:
@@ -146,7 +157,7 @@ def smallest_effect(mean_a: float, mean_b: float, floor: float = MIN_EFFECT_M) -
     return max(float(floor), RELATIVE_EFFECT * min(abs(float(mean_a)), abs(float(mean_b))))
 
 
-def less_than(a, b, confidence: float = 0.95, floor: float = MIN_EFFECT_M) -> Verdict:
+def less_than(a, b, confidence: float = 0.95, floor: float = MIN_EFFECT_M, drop_missing: bool = False) -> Verdict:
     """Verdict on "A < B" from paired replicate values.
 
     Parameters
@@ -157,12 +168,23 @@ def less_than(a, b, confidence: float = 0.95, floor: float = MIN_EFFECT_M) -> Ve
         Level of the interval (0.95 by the project's rule).
     floor : float
         Absolute floor of δ, in the values' unit (1 mm for errors in metres).
+    drop_missing : bool
+        False: a non-finite value is an error. True: pairs with a non-finite member (a replicate
+        in which the quantity was never measured, e.g. no detection) are left out, and fewer than
+        two complete pairs give "inconclusive" with a NaN interval and ``n`` the pairs left.
 
     Examples
     --------
     >>> less_than([1.0, 1.1, 0.9], [2.0, 2.1, 1.9]).verdict
     'holds'
     """
+    if drop_missing:
+        a, b = _complete_pairs(a, b)
+        if a.size < 2:
+            mean_a = float(a.mean()) if a.size else math.nan
+            mean_b = float(b.mean()) if b.size else math.nan
+            return Verdict(INCONCLUSIVE, "less", mean_a, mean_b, mean_a - mean_b, math.nan, math.nan,
+                           smallest_effect(mean_a, mean_b, floor) if a.size else float(floor), int(a.size), confidence)
     a, b = _pairs(a, b)
     d = a - b
     mean, low, high = t_interval(d, confidence)

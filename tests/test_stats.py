@@ -122,3 +122,30 @@ def test_equivalence_margin_boundary():
 def test_bad_replicates_are_rejected(a, b, match):
     with pytest.raises(ValueError, match=match):
         stats.less_than(a, b)
+
+
+def test_drop_missing_leaves_out_incomplete_pairs_and_judges_the_rest():
+    b = A + 0.005 + NOISE
+    a_gaps, b_gaps = A.copy(), b.copy()
+    a_gaps[2], b_gaps[7] = np.nan, np.inf  # replicates 2 and 7 measured nothing
+    v = stats.less_than(a_gaps, b_gaps, drop_missing=True)
+    keep = np.ones(10, bool)
+    keep[[2, 7]] = False
+    d = A[keep] - b[keep]  # 8 pairs: t_{0.975, 7} = 2.3646 (table)
+    half = 2.364624251592785 * float(np.std(d, ddof=1)) / math.sqrt(8)
+    assert v.verdict == stats.HOLDS and v.n == 8
+    assert (v.low, v.high) == pytest.approx((d.mean() - half, d.mean() + half), abs=1e-12)
+    assert v.mean_a == pytest.approx(A[keep].mean(), abs=1e-15)
+
+
+@pytest.mark.parametrize("n_complete", [0, 1])
+def test_drop_missing_with_fewer_than_two_pairs_is_inconclusive(n_complete):
+    a = np.full(5, np.nan)
+    b = np.linspace(0.01, 0.02, 5)
+    a[:n_complete] = 0.001
+    v = stats.less_than(a, b, drop_missing=True)
+    assert v.verdict == stats.INCONCLUSIVE and v.n == n_complete
+    assert math.isnan(v.low) and math.isnan(v.high)
+    assert v.delta >= stats.MIN_EFFECT_M
+    with pytest.raises(ValueError, match="finite"):
+        stats.less_than(a, b)
