@@ -10,10 +10,11 @@ from ._common import interactive
 from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
-           "run_explorer"]
+           "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
+_MOUNT_COLOURS = {"fixed": "tab:gray", "stabilised": "tab:blue", "active": "tab:orange"}
 
 
 def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
@@ -153,7 +154,8 @@ def plot_forest(verdicts, ax=None):
     Every row is one checked condition; the shaded band is ±δ (the smallest effect of interest,
     or the equivalence margin for "≈" claims), so a claim "a < b" holds where the interval lies
     left of 0 and its point left of −1. Colours give the verdict; the right margin prints the
-    difference and interval in mm.
+    difference and interval in mm, or in the row's ``unit`` when the table has that column
+    ("m", printed in mm, or "px"). A row without an interval (too few replicates) shows its point.
     """
     n = len(verdicts)
     if n == 0:
@@ -180,8 +182,10 @@ def plot_forest(verdicts, ax=None):
     ticks = [t for t in (-1000, -100, -10, -1, 0, 1, 10, 100, 1000) if abs(t) <= 1.6 * reach]
     ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
     ax.set_xlabel("(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1)")
-    for yi, r in zip(y, verdicts.itertuples()):
-        ax.annotate(f"{1000 * r.difference:+.1f} [{1000 * r.low:+.1f}, {1000 * r.high:+.1f}] mm",
+    units = verdicts["unit"] if "unit" in verdicts else ["m"] * n
+    for yi, r, unit in zip(y, verdicts.itertuples(), units):
+        k, name = (1000.0, "mm") if unit == "m" else (1.0, unit)
+        ax.annotate(f"{k * r.difference:+.1f} [{k * r.low:+.1f}, {k * r.high:+.1f}] {name}",
                     (1.01, yi), xycoords=("axes fraction", "data"), fontsize=6.5, va="center")
     ax.set_ylim(-0.7, n - 0.3)
     ax.grid(axis="x", alpha=0.3)
@@ -287,3 +291,157 @@ def run_explorer(results, frame: int | None = None):
         frame=ipywidgets.IntSlider(value=start, min=0, max=n - 1, step=1, description="frame",
                                    continuous_update=False),
     )
+
+
+def plot_mount_bars(summary, fig=None):
+    """The moving-drone study per cell: common-frame distance error, detection rate and blur streak.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        :func:`gimbal_lab.studies.moving_drone.summary_table` output.
+
+    Returns
+    -------
+    Figure
+        Rows: error (mm, over the frames every mount detected, 95 % CI), detection rate, streak
+        (px, 95 % CI); columns: targets. Bars: motions × shutters, one colour per mount; a cell
+        without common detections has no error bar (marked ×).
+    """
+    targets = list(dict.fromkeys(summary["target"]))
+    if not targets:
+        raise ValueError("summary holds no rows")
+    if fig is None:
+        fig = plt.figure(figsize=(5.2 * len(targets) + 1.6, 8.4), layout="constrained")
+    axes = fig.subplots(3, len(targets), squeeze=False, sharex=True)
+    mounts = [m for m in _MOUNT_COLOURS if (summary["mount"] == m).any()]
+    conditions = list(dict.fromkeys(zip(summary["motion"], summary["shutter"])))
+    x = np.arange(len(conditions))
+    width = 0.8 / len(mounts)
+    panels = (("common_abs_error_m", "ci_low_m", "ci_high_m", 1000.0, "|d_est − d_true| [mm]\nframes every mount detected"),
+              ("detection_rate", None, None, 1.0, "detection rate"),
+              ("mean_streak_px", "streak_ci_low_px", "streak_ci_high_px", 1.0, "target blur streak [px]"))
+    for col, target in enumerate(targets):
+        df = summary[summary["target"] == target]
+        for row, (value, low, high, k, label) in enumerate(panels):
+            ax = axes[row, col]
+            for j, mount in enumerate(mounts):
+                cells = [df[(df["motion"] == m) & (df["shutter"] == s) & (df["mount"] == mount)] for m, s in conditions]
+                pick = lambda c, name: k * float(c[name].iloc[0]) if (name and len(c)) else np.nan  # noqa: E731
+                means = np.array([pick(c, value) for c in cells])
+                offsets = x + (j - (len(mounts) - 1) / 2) * width
+                yerr = None
+                if low:
+                    lows = np.maximum(np.array([pick(c, low) for c in cells]), 0.0)
+                    highs = np.array([pick(c, high) for c in cells])
+                    yerr = np.vstack((means - lows, highs - means))
+                    yerr = np.where(np.isfinite(yerr), yerr, 0.0)
+                ax.bar(offsets, np.nan_to_num(means), width, yerr=yerr, capsize=2, color=_MOUNT_COLOURS[mount],
+                       edgecolor="k", linewidth=0.4, label=mount)
+                missing = ~np.isfinite(means)
+                if missing.any():
+                    ax.plot(offsets[missing], np.zeros(missing.sum()), "x", color="k", ms=6)
+            ax.set_ylabel(label)
+            ax.set_ylim(0, 1.05 if value == "detection_rate" else None)
+            ax.grid(axis="y", alpha=0.3)
+            if row == 0:
+                ax.set_title({"sphere": "sphere", "aruco": "ArUco marker"}.get(target, target))
+            if row == 2:
+                ax.set_xticks(x, [f"{m}\n{s}" for m, s in conditions], fontsize=8)
+    axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_mount_frames(runs, frame: int, renderer=None, zoom_px: int = 48, fig=None):
+    """One instant seen by several runs of one cell (the moving-drone study's three mounts).
+
+    Top row: each run's blurred frame with the overlays of :func:`gimbal_lab.show.annotate`;
+    bottom row: a crop of ``2·zoom_px`` pixels around the target's true centre, enlarged, where
+    the blur streak shows. ``runs`` share the target and lens; ``renderer`` is reused when given.
+    """
+    from ..show import annotate, replay
+    from ..simulation import make_renderer
+
+    runs = list(runs)
+    if not runs:
+        raise ValueError("no runs to show")
+    n = len(runs[0].frames)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < n:
+        raise ValueError(f"frame must be an integer in [0, {n - 1}], got {frame!r}")
+    if fig is None:
+        fig = plt.figure(figsize=(4.2 * len(runs), 6.4), layout="constrained")
+    axes = fig.subplots(2, len(runs), squeeze=False, height_ratios=(3, 2.4))
+    own = renderer is None
+    renderer = make_renderer(runs[0].config) if own else renderer
+    try:
+        for col, result in enumerate(runs):
+            c = result.config
+            row, image = next(replay(result, renderer=renderer, start=frame, stop=frame + 1))
+            axes[0, col].imshow(annotate(image, row, c, title=f"{c.mount.upper()}  streak {row.streak_px:.1f} px"))
+            axes[0, col].set_axis_off()
+            u, v = row.true_u_px, row.true_v_px
+            ax = axes[1, col]
+            if np.isfinite(u) and np.isfinite(v):
+                u0, v0 = int(round(u)) - zoom_px, int(round(v)) - zoom_px
+                pad = np.pad(image, ((zoom_px, zoom_px), (zoom_px, zoom_px), (0, 0)), constant_values=0)
+                ax.imshow(pad[v0 + zoom_px: v0 + 3 * zoom_px, u0 + zoom_px: u0 + 3 * zoom_px], interpolation="nearest")
+            ax.set_title(f"{2 * zoom_px} × {2 * zoom_px} px around the target", fontsize=9)
+            ax.set_axis_off()
+    finally:
+        if own:
+            renderer.close()
+    c = runs[0].config
+    shutter = f"rolling shutter {1000 * c.readout_s:.0f} ms" if c.readout_s > 0 else "global shutter"
+    fig.suptitle(f"{c.target}, {c.motion}, {shutter}, exposure {1000 * c.exposure_s:.1f} ms, replicate {c.seed}: "
+                 f"frame {frame} (t = {runs[0].frames['t_s'].iloc[frame]:.2f} s)", fontsize=10)
+    return fig
+
+
+def plot_body_motions(bodies: dict, duration_s: float = 4.0, zoom_s: float = 0.05, fig=None):
+    """The drone body's attitude and position over time, one column per motion.
+
+    Parameters
+    ----------
+    bodies : dict
+        Label → :class:`gimbal_lab.platform.BodyMotion` (e.g. the study's hover, vibration and
+        flight bodies of one replicate, ``config.body``).
+    duration_s : float
+        Time shown, s.
+    zoom_s : float
+        Length of the inset row's window (from t = 1 s), where the 120 Hz vibration shows.
+
+    Returns
+    -------
+    Figure
+        Rows: roll, pitch and yaw (deg) over ``duration_s``; the same over ``zoom_s``; the body's
+        displacement from its start (m).
+    """
+    if not bodies:
+        raise ValueError("no bodies to plot")
+    if not duration_s > zoom_s > 0:
+        raise ValueError(f"need duration_s > zoom_s > 0, got {duration_s!r}, {zoom_s!r}")
+    if fig is None:
+        fig = plt.figure(figsize=(4.0 * len(bodies) + 1.0, 7.0), layout="constrained")
+    axes = fig.subplots(3, len(bodies), squeeze=False)
+    t = np.linspace(0.0, duration_s, 4001)
+    tz = np.linspace(1.0, 1.0 + zoom_s, 1001)
+    names = ("yaw", "pitch", "roll")
+    for col, (label, body) in enumerate(bodies.items()):
+        for ax, times in ((axes[0, col], t), (axes[1, col], tz)):
+            angles = np.degrees(body.attitude(times)[0])
+            for i in (2, 1, 0):
+                ax.plot(times, angles[:, i], lw=0.9, label=names[i])
+            ax.grid(alpha=0.3)
+        axes[0, col].set_title(label)
+        axes[1, col].set_xlabel("t [s]")
+        p = body.position(t)
+        for i, axis in enumerate("xyz"):
+            axes[2, col].plot(t, p[:, i] - p[0, i], lw=0.9, label=f"Δ{axis}")
+        axes[2, col].set_xlabel("t [s]")
+        axes[2, col].grid(alpha=0.3)
+        axes[2, col].legend(fontsize=7, loc="upper right")
+    axes[0, 0].set_ylabel("attitude [deg]")
+    axes[1, 0].set_ylabel(f"attitude [deg]\n{1000 * zoom_s:.0f} ms from t = 1 s")
+    axes[2, 0].set_ylabel("position − start [m]")
+    axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig

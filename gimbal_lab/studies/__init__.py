@@ -1,7 +1,8 @@
 """The lab's studies: one module each, with its grid, tables, claims and report.
 
-A study module defines ``NAME``, ``DESCRIPTION``, a parameters dataclass with ``from_toml``, and
-``run_study(params, out, store, executor, jobs, progress)`` used by ``gimbal-lab run NAME``.
+A study module defines ``NAME``, ``DESCRIPTION``, its parameters dataclass as ``Study`` (with
+``from_toml``, ``replicates`` and ``revolutions``), ``grid(params)`` and
+``run_study(params, out, store, executor, jobs, progress, clips)``, used by ``gimbal-lab run NAME``.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from importlib import import_module
 __all__ = ["STUDIES", "load"]
 
 #: Study name → module (``gimbal-lab run --list`` prints them).
-STUDIES = {"paper": "gimbal_lab.studies.paper"}
+STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone"}
 
 
 def load(name: str):

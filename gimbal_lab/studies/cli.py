@@ -65,9 +65,9 @@ def _run(args, parser) -> int:
     if not args.out or not args.out.strip():
         parser.error("--out must name a folder, got an empty string")
     try:
-        params = module.PaperStudy.from_toml(args.config) if args.config else module.PaperStudy()
+        params = module.Study.from_toml(args.config) if args.config else module.Study()
         if args.replicates is not None:
-            params = module.PaperStudy(**{**params.to_dict(), "replicates": args.replicates})
+            params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
     except (ValueError, TypeError, FileNotFoundError) as exc:
         parser.error(str(exc))
 

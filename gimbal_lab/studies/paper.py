@@ -15,8 +15,7 @@ Claims (paper §4.1.1–4.1.2; docs/design.md) are checked with the three-way ve
 from __future__ import annotations
 
 import math
-import tomllib
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ import pandas as pd
 
 from .. import stats
 from ..simulation import TrackingConfig, _number
+from ._params import StudyParams
 
 __all__ = [
     "PaperStudy",
@@ -57,7 +57,7 @@ _PHASE_STREAM = 1
 
 
 @dataclass(frozen=True)
-class PaperStudy:
+class PaperStudy(StudyParams):
     """Parameters of the paper's study (defaults: docs/design.md; ``data/studies/paper.toml``).
 
     Parameters
@@ -92,6 +92,8 @@ class PaperStudy:
     outer_loop: str = "paper"
     aruco_refinement: str = "subpix"
 
+    _TABLE = NAME
+
     def __post_init__(self):
         set_ = lambda name, value: object.__setattr__(self, name, value)
         set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
@@ -107,31 +109,9 @@ class PaperStudy:
                        aruco_refinement=self.aruco_refinement)
         return TrackingConfig(**{**fields_, **changes})
 
-    @property
-    def seeds(self) -> list[int]:
-        return list(range(self.first_seed, self.first_seed + self.replicates))
 
-    @classmethod
-    def from_toml(cls, path) -> "PaperStudy":
-        """Parameters from a TOML file with a ``[paper]`` table (unknown keys name themselves)."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"study config {path} does not exist")
-        try:
-            data = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"study config {path} is not valid TOML: {exc}") from None
-        table = data.get(NAME, data)
-        if not isinstance(table, dict):
-            raise ValueError(f"study config {path}: [{NAME}] must be a table")
-        allowed = {f.name for f in fields(cls)}
-        unknown = sorted(set(table) - allowed)
-        if unknown:
-            raise ValueError(f"study config {path}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
-        return cls(**table)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+#: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
+Study = PaperStudy
 
 
 def replicate_phase_s(seed: int, period_s: float) -> float:

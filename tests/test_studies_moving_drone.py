@@ -1,0 +1,288 @@
+"""The moving-drone study: its grid and draws, its replicate table on hand-built frame tables, and
+its hypotheses on hand-built replicate tables, one case per outcome."""
+
+import itertools
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gimbal_lab import stats
+from gimbal_lab.platform import WaypointFlight
+from gimbal_lab.simulation import TrackingConfig, TrackingResult
+from gimbal_lab.studies import _params, load
+from gimbal_lab.studies import moving_drone as md
+from gimbal_lab.studies.paper import replicate_phase_s
+
+SEEDS = range(6)
+JITTER = np.array([-1, 1, -1, 1, -1, 1]) * 1e-4  # ±0.1 mm: designed effects stay far outside their intervals
+
+
+# ----------------------------------------------------------------------------------------------
+# grid and parameters
+# ----------------------------------------------------------------------------------------------
+def test_grid_is_36_cells_times_replicates_with_shared_draws():
+    study = md.MovingDroneStudy(replicates=3, first_seed=5)
+    configs = md.grid(study)
+    assert len(configs) == 36 * 3
+    cells = {(c.target, c.motion, c.mount, "rolling" if c.readout_s else "global") for c in configs}
+    assert cells == set(itertools.product(md.TARGETS, md.MOTIONS, md.MOUNTS, md.SHUTTERS))
+    for c in configs:
+        assert (c.exposure_s, c.blur, c.trajectory) == (1 / 60, "fast", "circular")
+        assert c.readout_s in (0.0, 0.020)
+        assert c.gyro_noise_rad_s_rthz == pytest.approx(math.radians(0.005), rel=1e-12)
+        assert c.mode == ("active" if c.mount == "active" else "passive")
+        assert c.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        assert c.motion_phase_s == (md.flight_phase_s(c.seed) if c.motion == "flight" else 0.0)
+    assert sorted({c.seed for c in configs}) == [5, 6, 7]
+    phases = [md.flight_phase_s(s) for s in range(200)]
+    assert 0.0 <= min(phases) and max(phases) < WaypointFlight().period_s == 10.0
+    assert len(set(phases)) == 200 and md.flight_phase_s(3) == md.flight_phase_s(3)
+
+
+def test_the_same_seed_is_the_same_body_in_every_cell():
+    study = md.MovingDroneStudy(replicates=2)
+    bodies = [study.config("sphere", "vibration", m, s, 1).body for m in md.MOUNTS for s in md.SHUTTERS]
+    bodies += [study.config("aruco", "vibration", "fixed", "global", 1).body]
+    t = np.linspace(0.0, 1.0, 7)
+    poses = [b.T_world_body(t) for b in bodies]
+    assert all(np.array_equal(p, poses[0]) for p in poses)
+    other = study.config("sphere", "vibration", "fixed", "global", 2).body.T_world_body(t)
+    assert not np.allclose(other, poses[0])
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    (dict(replicates=1), "replicates"), (dict(revolutions=1.5), "revolutions"), (dict(exposure_s=0.0), "exposure_s"),
+    (dict(exposure_s=0.05), "exposure_s"), (dict(readout_s=-0.01), "readout_s"), (dict(fps=-1), "fps"),
+    (dict(aruco_refinement="best"), "aruco_refinement"),
+])
+def test_bad_parameters_name_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        md.MovingDroneStudy(**kwargs)
+
+
+@pytest.mark.parametrize("args, name", [
+    (("cube", "hover", "fixed", "global", 0), "target"), (("sphere", "sway", "fixed", "global", 0), "motion"),
+    (("sphere", "hover", "handheld", "global", 0), "mount"), (("sphere", "hover", "fixed", "slow", 0), "shutter"),
+])
+def test_bad_cell_names_are_clear_errors(args, name):
+    with pytest.raises(ValueError, match=name):
+        md.MovingDroneStudy(replicates=2).config(*args)
+
+
+def test_config_from_toml_and_the_shipped_file_is_the_default(tmp_path):
+    path = tmp_path / "md.toml"
+    path.write_text('[moving-drone]\nreplicates = 4\nreadout_s = 0.03\n')
+    study = md.MovingDroneStudy.from_toml(path)
+    assert (study.replicates, study.readout_s, study.seeds) == (4, 0.03, [0, 1, 2, 3])
+    path.write_text('[moving-drone]\nshutter = "rolling"\n')
+    with pytest.raises(ValueError, match="unknown key.*shutter"):
+        md.MovingDroneStudy.from_toml(path)
+    from pathlib import Path
+
+    shipped = Path(__file__).parent.parent / "data" / "studies" / "moving-drone.toml"
+    assert md.MovingDroneStudy.from_toml(shipped) == md.MovingDroneStudy()
+    assert load("moving-drone") is md and md.Study is md.MovingDroneStudy
+
+
+@pytest.mark.parametrize("text, expected", [("", 10), ("3", 3), (" 12 ", 12)])
+def test_replicates_from_the_environment(monkeypatch, text, expected):
+    monkeypatch.setenv(_params.REPLICATES_ENV, text)
+    assert _params.replicates_from_env() == expected
+
+
+@pytest.mark.parametrize("text", ["1", "three", "2.5", "-4"])
+def test_bad_replicates_in_the_environment_name_the_variable(monkeypatch, text):
+    monkeypatch.setenv(_params.REPLICATES_ENV, text)
+    with pytest.raises(ValueError, match=_params.REPLICATES_ENV):
+        _params.replicates_from_env()
+
+
+# ----------------------------------------------------------------------------------------------
+# replicate table on hand-built runs
+# ----------------------------------------------------------------------------------------------
+def fake_run(mount, detected, errors, streaks, seed=0, shutter="global", motion="hover", target="sphere"):
+    """A run of ``len(detected)`` frames per revolution × 2 revolutions: the first revolution is
+    acquisition (its frames are all detected with a 1 m error, which must not count)."""
+    study = md.MovingDroneStudy(replicates=2, fps=3.0, period_s=2.0)  # 6 frames per revolution
+    config = study.config(target, motion, mount, shutter, seed)
+    n = int(config.frames_per_revolution)
+    assert len(detected) == n
+    frames = pd.DataFrame({
+        "frame": np.arange(2 * n),
+        "t_s": np.arange(2 * n) / config.fps,
+        "t_mid_s": np.arange(2 * n) / config.fps,
+        "detected": np.r_[np.ones(n, bool), detected],
+        "abs_error_m": np.r_[np.ones(n), np.where(detected, errors, np.nan)],
+        "streak_px": np.r_[np.full(n, 99.0), streaks],
+        "cam_turn_deg": np.r_[np.zeros(n), np.full(n, 0.5)],
+        "true_offset_px": np.r_[np.zeros(n), np.full(n, 10.0)],
+        "offset_px": np.r_[np.full(n, 100.0), np.full(n, 10.0)],
+    })
+    return TrackingResult(config=config, frames=frames)
+
+
+def test_common_frames_are_those_every_mount_detected():
+    d = {"fixed": [1, 1, 0, 1, 0, 1], "stabilised": [1, 1, 1, 1, 0, 0], "active": [1, 1, 1, 1, 1, 1]}
+    errors = {"fixed": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], "stabilised": [0.01, 0.02, 0.03, 0.04, 0.05, 0.06],
+              "active": [0.001, 0.002, 0.003, 0.004, 0.005, 0.006]}
+    streaks = {"fixed": [10, 12, 14, 10, 12, 14], "stabilised": [5] * 6, "active": [1, 2, 1, 2, 1, 2]}
+    runs = [fake_run(m, np.array(d[m], bool), np.array(errors[m]), np.array(streaks[m], float)) for m in md.MOUNTS]
+    table = md.replicate_table(runs).set_index("mount")
+    # common: frames 0, 1, 3 (by hand)
+    assert table.loc["fixed", "common_rate"] == pytest.approx(0.5)
+    assert table.loc["fixed", "common_abs_error_m"] == pytest.approx((0.1 + 0.2 + 0.4) / 3, abs=1e-15)
+    assert table.loc["stabilised", "common_abs_error_m"] == pytest.approx((0.01 + 0.02 + 0.04) / 3, abs=1e-15)
+    assert table.loc["active", "common_abs_error_m"] == pytest.approx(0.007 / 3, abs=1e-15)
+    # own detections
+    assert table.loc["fixed", "detection_rate"] == pytest.approx(4 / 6)
+    assert table.loc["fixed", "mean_abs_error_m"] == pytest.approx((0.1 + 0.2 + 0.4 + 0.6) / 4, abs=1e-15)
+    assert table.loc["stabilised", "mean_abs_error_m"] == pytest.approx(0.1 / 4, abs=1e-15)
+    # streak over every measured frame, detected or not; the acquisition revolution never counts
+    assert table.loc["fixed", "mean_streak_px"] == pytest.approx(12.0)
+    assert table.loc["fixed", "max_streak_px"] == 14.0
+    assert table.loc["active", "mean_streak_px"] == pytest.approx(1.5)
+    assert table.loc["active", "jitter_deg"] == pytest.approx(0.5)
+    assert table.loc["active", "mean_true_offset_px"] == pytest.approx(10.0)
+    assert (table["frames"] == 6).all()
+
+
+def test_runs_are_grouped_by_target_motion_shutter_and_seed():
+    ones = np.ones(6, bool)
+    runs = [fake_run(m, ones if s == "global" else np.r_[np.zeros(3, bool), np.ones(3, bool)],
+                     np.full(6, 0.01), np.full(6, 1.0), seed=seed, shutter=s)
+            for m in md.MOUNTS for s in md.SHUTTERS for seed in (0, 1)]
+    runs.append(fake_run("fixed", np.zeros(6, bool), np.full(6, 0.01), np.full(6, 1.0), seed=0, motion="flight"))
+    table = md.replicate_table(runs)
+    assert len(table) == 13
+    rolling = table[(table.shutter == "rolling") & (table.motion == "hover")]
+    assert (rolling["common_rate"] == 0.5).all() and (table[(table.shutter == "global") & (table.motion == "hover")]["common_rate"] == 1.0).all()
+    lone = table[table.motion == "flight"].iloc[0]
+    assert lone["common_rate"] == 0.0 and math.isnan(lone["common_abs_error_m"])
+    assert list(table["mount"].iloc[:4]) == ["fixed"] * 4  # fixed, stabilised, active order
+
+
+# ----------------------------------------------------------------------------------------------
+# hypotheses on hand-built replicate tables
+# ----------------------------------------------------------------------------------------------
+def designed_errors():
+    """Per cell: (common error m, streak px) shaped so that every hypothesis holds widely."""
+    cells = {}
+    for target, motion, mount, shutter in itertools.product(md.TARGETS, md.MOTIONS, md.MOUNTS, md.SHUTTERS):
+        error = {"fixed": 0.100, "stabilised": 0.060, "active": 0.010}[mount]
+        if motion == "flight" and mount == "stabilised":
+            error = 0.080
+        if shutter == "rolling":
+            error += 0.030 if mount == "fixed" else 0.002
+        streak = {"fixed": 40.0, "stabilised": 10.0, "active": 2.0}[mount]
+        cells[(target, motion, mount, shutter)] = (error, streak)
+    return cells
+
+
+def make_replicates(cells, overrides=None):
+    rows = []
+    for (target, motion, mount, shutter), (error, streak) in cells.items():
+        for seed in SEEDS:
+            rows.append(dict(target=target, motion=motion, mount=mount, shutter=shutter, seed=seed,
+                             common_abs_error_m=error + JITTER[seed], mean_streak_px=streak + 10 * JITTER[seed]))
+    df = pd.DataFrame(rows)
+    for (target, motion, mount, shutter, column), value in (overrides or {}).items():
+        sel = (df.target == target) & (df.motion == motion) & (df["mount"] == mount) & (df.shutter == shutter)
+        df.loc[sel, column] = value
+    return df
+
+
+def test_every_hypothesis_holds_on_designed_replicates():
+    v = md.check_hypotheses(make_replicates(designed_errors()))
+    assert list(dict.fromkeys(v["id"])) == ["H1", "H2", "H3", "H4"]
+    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H3", "H4")] == [24, 4, 24, 12]
+    assert (v["verdict"] == stats.HOLDS).all(), v[v["verdict"] != stats.HOLDS]
+    assert set(v.loc[v["id"] == "H3", "unit"]) == {"px"} and set(v.loc[v["id"] != "H3", "unit"]) == {"m"}
+    h4 = v[(v["id"] == "H4") & (v["condition"] == "sphere, hover") & (v["a"] == "cost active")].iloc[0]
+    assert h4["mean_a"] == pytest.approx(0.002, abs=1e-12) and h4["mean_b"] == pytest.approx(0.030, abs=1e-12)
+    h3 = v[(v["id"] == "H3") & (v["a"] == "active")].iloc[0]
+    assert h3["delta"] == pytest.approx(1.0)  # the pixel floor, not 10 % of 2 px
+
+
+def test_each_hypothesis_fails_where_its_numbers_say_so():
+    cells = designed_errors()
+    # H1 opposite: the stabilised camera worse than fixed in sphere hover, global
+    cells[("sphere", "hover", "stabilised", "global")] = (0.150, 10.0)
+    # H2 no effect: active ≈ stabilised in ArUco flight (0.2 mm apart, δ = 8 mm), both shutters,
+    # with the same rolling-shutter cost for both (H4 unchanged)
+    cells[("aruco", "flight", "active", "global")] = (0.0800, 2.0)
+    cells[("aruco", "flight", "active", "rolling")] = (0.0822, 2.0)
+    cells[("aruco", "flight", "stabilised", "global")] = (0.0798, 10.0)
+    cells[("aruco", "flight", "stabilised", "rolling")] = (0.0820, 10.0)
+    # H3: stabilised streak only 0.5 px below fixed in sphere vibration, global (δ = 1 px)
+    cells[("sphere", "vibration", "stabilised", "global")] = (0.060, 39.5)
+    v = md.check_hypotheses(make_replicates(cells)).set_index(["id", "condition", "a"])
+    assert v.loc[("H1", "sphere, hover, global", "stabilised"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("H1", "sphere, hover, global", "stabilised"), "low"] > 0
+    for shutter in md.SHUTTERS:
+        assert v.loc[("H2", f"aruco, flight, {shutter}", "active"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("H3", "sphere, vibration, global", "stabilised"), "verdict"] == stats.DOES_NOT_HOLD
+    # H4 in sphere hover: fixed's cost is 0.030, stabilised's now 0.062 − 0.150 < 0: holds more strongly
+    assert v.loc[("H4", "sphere, hover", "cost stabilised"), "verdict"] == stats.HOLDS
+    assert (v["verdict"] != stats.HOLDS).sum() == 4
+
+
+def test_replicates_without_common_frames_leave_their_pairs_out():
+    cells = designed_errors()
+    over = {("aruco", m, mount, s, "common_abs_error_m"): np.nan
+            for m in md.MOTIONS for mount in md.MOUNTS for s in md.SHUTTERS}
+    df = make_replicates(cells, over)
+    # two replicates of one cell measured something: still fewer than two complete pairs for H1
+    sel = (df.target == "aruco") & (df.motion == "hover") & (df["mount"] == "fixed") & (df.shutter == "global")
+    df.loc[sel & (df.seed <= 1), "common_abs_error_m"] = 0.1
+    v = md.check_hypotheses(df)
+    aruco_errors = v[(v["id"] != "H3") & v["condition"].str.startswith("aruco")]
+    assert len(aruco_errors) == 12 + 2 + 6
+    assert (aruco_errors["verdict"] == stats.INCONCLUSIVE).all() and (aruco_errors["n"] == 0).all()
+    assert aruco_errors["low"].isna().all()
+    text = md.hypotheses_markdown(v)
+    assert "only 0 replicate(s) have frames where every mount detected the target" in text
+    # the streak needs no detection: H3 is judged for ArUco too
+    assert (v[(v["id"] == "H3") & v["condition"].str.startswith("aruco")]["verdict"] == stats.HOLDS).all()
+
+
+def test_a_noisy_difference_is_inconclusive():
+    cells = designed_errors()
+    df = make_replicates(cells)
+    sel = (df.target == "sphere") & (df.motion == "flight") & (df["mount"] == "active") & (df.shutter == "global")
+    df.loc[sel, "common_abs_error_m"] = 0.080 + np.array([-0.03, 0.03, -0.03, 0.03, -0.03, 0.02])
+    v = md.check_hypotheses(df).set_index(["id", "condition", "a"])
+    row = v.loc[("H2", "sphere, flight, global", "active")]
+    assert row["verdict"] == stats.INCONCLUSIVE and row["low"] < 0 < row["high"]
+
+
+def test_missing_cells_and_duplicate_seeds_are_clear_errors():
+    df = make_replicates(designed_errors())
+    with pytest.raises(ValueError, match="no rows for sphere/hover/active/global"):
+        md.check_hypotheses(df[~((df.target == "sphere") & (df.motion == "hover") & (df["mount"] == "active")
+                                 & (df.shutter == "global"))])
+    with pytest.raises(ValueError, match="seed twice"):
+        md.check_hypotheses(pd.concat([df, df.iloc[:1]]))
+    with pytest.raises(ValueError, match="no runs"):
+        md.check_hypotheses(df.assign(target="cube"))
+
+
+def test_one_motion_checks_what_it_can():
+    df = make_replicates(designed_errors())
+    v = md.check_hypotheses(df[df.motion == "hover"])
+    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H3", "H4")] == [8, 0, 8, 4]
+
+
+def test_markdown_gives_counts_reasons_and_detection_rates():
+    cells = designed_errors()
+    cells[("sphere", "hover", "stabilised", "global")] = (0.150, 10.0)
+    df = make_replicates(cells)
+    v = md.check_hypotheses(df)
+    summary = pd.DataFrame([dict(target=t, motion=m, mount=mount, shutter=s, detection_rate=0.25)
+                            for t, m, mount, s in cells])
+    text = md.hypotheses_markdown(v, summary)
+    assert "| H1 | 23 | 1 | 0 |" in text
+    assert "the opposite is measured: stabilised exceeds fixed by 50.00 mm" in text
+    assert "| sphere | hover | global | 0.25 | 0.25 | 0.25 |" in text
+    assert text.count("| **holds** |") == 63
