@@ -62,10 +62,12 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
 
     Notes
     -----
-    Frames are rendered by :func:`gimbal_lab.simulation.render_frame`, as in the run. They are
-    bit-identical to the run's: each is rendered from the joint angles and the camera's inertial
-    rates the run recorded at its exposure's start (``q0_*``, ``w_*``) and the config's body
-    motion, exactly as the closed loop rendered it.
+    Frames are bit-identical to the run's. A sharp frame (``exposure_s == 0``) is rendered by
+    :func:`gimbal_lab.simulation.render_frame` from the joint angles and rates the run recorded at
+    its start (``q0_*``, ``w_*``) and the config's body motion. A blurred frame integrates the
+    camera's motion through the exposure, which the table does not hold: the closed loop
+    (:func:`gimbal_lab.simulation.closed_loop`) runs again up to ``stop``, and each frame is
+    checked against the table (a run stored by another version of the package raises).
     """
     from .kinematics import GimbalKinematics
     from .scene import add_sensor_noise
@@ -83,6 +85,9 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
     if own:
         renderer = make_renderer(config)
     try:
+        if config.exposure_s > 0:
+            yield from _rerun(result, renderer, every, start, stop)
+            return
         kin = GimbalKinematics.default()
         body = config.body
         window_s = config.exposure_s + config.readout_s
@@ -104,6 +109,22 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
     finally:
         if own:
             renderer.close()
+
+
+def _rerun(result, renderer, every, start, stop):
+    """Frames ``start:stop:every`` of a blurred run, by running its closed loop again."""
+    from .simulation import _COLUMNS, closed_loop
+
+    i_t, i_detected = _COLUMNS.index("t_mid_s"), _COLUMNS.index("detected")
+    loop = closed_loop(result.config, renderer)
+    for i, ((values, image), row) in enumerate(zip(loop, result.frames.itertuples(index=False))):
+        if i >= stop:
+            break
+        if values[i_t] != row.t_mid_s or values[i_detected] != row.detected:
+            raise RuntimeError(f"{result.config.label}: frame {i} of the run differs from the frame computed again "
+                               "(a run stored by another version of gimbal_lab?); run it again to show it")
+        if i >= start and (i - start) % every == 0:
+            yield row, image
 
 
 def _point(u, v):

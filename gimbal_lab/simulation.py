@@ -112,7 +112,7 @@ class TrackingConfig:
         Rate of the inner loop and of the axis integration (1 kHz), >= fps.
     latency_frames : int
         Frames between taking an image and its detection reaching the outer loop (>= 0; 1),
-        fewer than the run's frames.
+        fewer than the run's frames; >= 1 with an exposure.
     sphere_method : {"circle", "ellipse"}
         Paper's enclosing-circle estimate, or the exact cone (ellipse) method.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
@@ -216,6 +216,9 @@ class TrackingConfig:
         set_("latency_frames", _number("latency_frames", self.latency_frames, low=0, high=max(self.n_frames - 1, 0),
                                        integer=True))
         set_("exposure_s", _number("exposure_s", self.exposure_s, low=0.0, high=1.0 / self.fps))
+        if self.exposure_s > 0 and self.latency_frames < 1:
+            raise ValueError("exposure_s > 0 needs latency_frames >= 1: a frame is detected after its exposure, so its "
+                             "detection cannot steer the camera during it")
         set_("noise_std", _number("noise_std", self.noise_std, low=0.0, high=128.0))
         set_("readout_s", _number("readout_s", self.readout_s, low=0.0, high=1.0 / self.fps))
         if self.readout_s > 0 and self.blur != "fast":
@@ -360,7 +363,7 @@ FRAME_COLUMNS = {
     "alt_*": "sphere only: the same columns for the other localiser (circle ↔ ellipse) on the same frame",
     "q0_yaw_rad, q0_roll_rad, q0_pitch_rad": "joint angles when the exposure starts",
     "w_yaw_rad_s, w_roll_rad_s, w_pitch_rad_s": "the camera's inertial rate in the joint basis when the exposure "
-                                                "starts (gimbal_lab.mount); with q0 it re-renders the frame",
+                                                "starts (gimbal_lab.mount); with q0 it re-renders a sharp frame",
     "streak_px": "the target's blur streak: length of the true centre's image path over the exposure, px",
     "cam_turn_deg": "largest rotation of the camera within the exposure, degrees (pointing jitter)",
 }
@@ -558,16 +561,42 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
     -----
     Paper §4.1 and Fig. 5. Same config (seed included) → identical frame table.
     """
-    from .control import ImageLoop
-    from .kinematics import GimbalKinematics
-    from .mount import GimbalMount
-    from .scene import add_sensor_noise
-
     if not isinstance(config, TrackingConfig):
         raise TypeError(f"config must be a TrackingConfig, got {type(config).__name__}")
     own_renderer = renderer is None
     if own_renderer:
         renderer = make_renderer(config)
+    timing = {"render_s": 0.0, "detect_s": 0.0, "total_s": 0.0}
+    t_start = time.perf_counter()
+    try:
+        frames = closed_loop(config, renderer, timing)
+        if progress:
+            from tqdm.auto import tqdm
+
+            frames = tqdm(frames, total=config.n_frames, desc=config.label, unit="frame")
+        rows = [row for row, _ in frames]
+    finally:
+        if own_renderer:
+            renderer.close()
+    timing["total_s"] = time.perf_counter() - t_start
+    table = pd.DataFrame.from_records(rows, columns=_COLUMNS)
+    return TrackingResult(config=config, frames=table, timing=timing)
+
+
+def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
+    """The closed loop of :func:`simulate`, frame by frame: yields ``(row, image)``.
+
+    ``row`` is the frame's tuple of values in the order of the frame table's columns
+    (:data:`FRAME_COLUMNS` describes them) and ``image`` the noisy frame the detector saw (RGB,
+    uint8). ``timing`` (optional) accumulates ``render_s`` and ``detect_s``.
+    :func:`gimbal_lab.show.replay` runs it again to show a blurred run's frames exactly.
+    """
+    from .control import ImageLoop
+    from .kinematics import GimbalKinematics
+    from .mount import GimbalMount
+    from .scene import add_sensor_noise
+
+    timing = {"render_s": 0.0, "detect_s": 0.0} if timing is None else timing
     rng = np.random.default_rng(config.seed)
     K = config.intrinsics
     lens = config.lens
@@ -589,22 +618,37 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
 
     pending: deque = deque()
     rate_ref = np.zeros(3)
-    rows = []
-    timing = {"render_s": 0.0, "detect_s": 0.0, "total_s": 0.0}
-    t_start = time.perf_counter()
     window_s = config.exposure_s + config.readout_s
+    # A sharp frame is the instant its exposure starts. A blurred frame integrates the camera's
+    # real motion, so the frame's inner steps run first (their rate reference comes from frames
+    # already detected: latency_frames >= 1) and the exposure is rendered from the joint angles
+    # recorded on the way.
+    run_first = config.exposure_s > 0
 
-    frames = range(n_frames)
-    if progress:
-        from tqdm.auto import tqdm
+    def steer(k, q0):
+        """The outer loop at frame k: the measurement of frame k − latency arrives."""
+        nonlocal rate_ref
+        if pending and pending[0][0] <= k - config.latency_frames:
+            _, t_capture, measured, q_capture, range_m = pending.popleft()
+            if image_loop is not None:
+                J_cam = kin.angular_jacobian(q0, frame="camera", check_limits=False)
+                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q0), float)
+            elif predictive is not None:
+                predictive.observe(t_capture, measured, q_capture, range_m=range_m)
+        if predictive is not None:
+            rate_ref = predictive.command(k / config.fps, q0)
 
-        frames = tqdm(frames, desc=config.label, unit="frame")
-    for k in frames:
+    for k in range(n_frames):
         t_s = k / config.fps
         q0 = mount.q
         qd = mount.qd
         w0 = mount.smooth_axis_rates
-        camera_fn = mount.exposure_pose_fn(t_s, t_s + window_s)
+        if run_first:
+            steer(k, q0)
+            mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
+            camera_fn = mount.recorded_pose_fn(t_s, t_s + window_s)
+        else:
+            camera_fn = mount.exposure_pose_fn(t_s, t_s + window_s)
 
         t0 = time.perf_counter()
         image, q, T_world_cam, T_world_target, t_mid = render_frame(config, renderer, camera_fn, t_s)
@@ -629,31 +673,16 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         p_alt = R @ p_cam_alt + c
         d_alt = float(np.linalg.norm(p_cam_alt))
         u, v = (uv if uv is not None else (math.nan, math.nan))
-        rows.append(
+        row = (
             (k, t_s, t_mid, int(t_mid // config.period_s), detected, *p_true, *p_est, *p_cam_true, *p_cam_est,
              d_true, d_est, d_est - d_true, abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
              *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
              alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true),
              *q0, *w0, streak_px, math.degrees(cam_turn_rad))
         )
-
-        # Outer loop: the measurement of frame k reaches it latency_frames frames later.
-        pending.append((t_mid, uv, q, d_est if detected else None))
-        if len(pending) > config.latency_frames:
-            t_capture, measured, q_capture, range_m = pending.popleft()
-            if image_loop is not None:
-                J_cam = kin.angular_jacobian(q0, frame="camera", check_limits=False)
-                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q0), float)
-            elif predictive is not None:
-                predictive.observe(t_capture, measured, q_capture, range_m=range_m)
-        if predictive is not None:
-            rate_ref = predictive.command(t_s, q0)
-
-        # Inner loops and axis dynamics (and the body) until the next frame.
-        mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
-
-    timing["total_s"] = time.perf_counter() - t_start
-    if own_renderer:
-        renderer.close()
-    table = pd.DataFrame.from_records(rows, columns=_COLUMNS)
-    return TrackingResult(config=config, frames=table, timing=timing)
+        # the measurement of frame k reaches the outer loop latency_frames frames later
+        pending.append((k, t_mid, uv, q, d_est if detected else None))
+        if not run_first:
+            steer(k, q0)
+            mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
+        yield row, image

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gimbal_lab.show import annotate, replay, side_by_side, write_clip
-from gimbal_lab.simulation import TrackingConfig, _Estimator, simulate
+from gimbal_lab.simulation import TrackingConfig, TrackingResult, _Estimator, closed_loop, make_renderer, simulate
 
 
 def cfg(**changes) -> TrackingConfig:
@@ -63,7 +63,7 @@ def test_one_frame_from_the_middle_is_the_runs_own(runs):
     assert list(replay(result, start=4, stop=4)) == []
 
 
-def test_blurred_frames_replay_within_a_hundredth_of_a_pixel():
+def test_blurred_frames_replay_exactly():
     config = cfg(exposure_s=1 / 60, n_subframes=4, revolutions=0.15)
     result = simulate(config)
     estimate = _Estimator(config)
@@ -71,9 +71,27 @@ def test_blurred_frames_replay_within_a_hundredth_of_a_pixel():
     for row, image in replay(result):
         uv, _, _ = estimate(image)
         if row.detected:
-            np.testing.assert_allclose(uv, [row.u_px, row.v_px], atol=0.01)
+            assert uv is not None and np.array_equal(uv, [row.u_px, row.v_px])
         else:
             assert uv is None
+
+
+def test_a_moving_drones_blurred_frames_are_the_closed_loops_own():
+    """Vibrating body, active mount, fast blur, rolling shutter: replay runs the loop again."""
+    config = cfg(motion="vibration", exposure_s=1 / 60, blur="fast", readout_s=0.01, revolutions=0.2)
+    renderer = make_renderer(config)
+    try:
+        images = [image for _, image in closed_loop(config, renderer)]
+        result = simulate(config, renderer=renderer)
+        shown = list(replay(result, renderer=renderer, start=1, every=2))
+        assert [row.frame for row, _ in shown] == list(range(1, config.n_frames, 2))
+        for row, image in shown:
+            assert np.array_equal(image, images[row.frame])
+        foreign = TrackingResult(config, result.frames.assign(t_mid_s=result.frames["t_mid_s"] + 1e-3))
+        with pytest.raises(RuntimeError, match="differs from the frame computed again"):
+            list(replay(foreign, renderer=renderer))
+    finally:
+        renderer.close()
 
 
 def test_overlays_land_on_the_true_centre_and_the_image_centre(runs):
