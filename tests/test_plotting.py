@@ -113,3 +113,64 @@ def test_error_bar_whiskers_are_the_replicate_interval_and_never_below_zero():
         assert len(segments) == 4
         for seg in segments:
             np.testing.assert_allclose(sorted(seg[:, 1]), [low, high], atol=1e-9)
+
+
+def _moving_summary():
+    import itertools
+
+    import numpy as np
+    import pandas as pd
+
+    rows = []
+    for i, (target, motion, mount, shutter) in enumerate(itertools.product(
+            ("sphere", "aruco"), ("hover", "flight"), ("fixed", "stabilised", "active"), ("global", "rolling"))):
+        error = np.nan if (target, motion) == ("aruco", "hover") else 0.001 * (i + 1)
+        rows.append(dict(target=target, motion=motion, mount=mount, shutter=shutter, common_abs_error_m=error,
+                         ci_low_m=error - 1e-4, ci_high_m=error + 1e-4, detection_rate=0.5,
+                         mean_streak_px=float(i), streak_ci_low_px=i - 0.5, streak_ci_high_px=i + 0.5))
+    return pd.DataFrame(rows)
+
+
+def test_mount_bars_draw_the_summary_values_in_mm_and_mark_missing_cells():
+    import numpy as np
+
+    from gimbal_lab.plotting import study
+
+    summary = _moving_summary()
+    from matplotlib.container import BarContainer
+
+    fig = study.plot_mount_bars(summary)
+    axes = np.array(fig.axes).reshape(3, 2)
+    bars_of = lambda ax: [c for c in ax.containers if isinstance(c, BarContainer)]  # noqa: E731
+    for col, target in enumerate(("sphere", "aruco")):
+        df = summary[summary.target == target]
+        for mount_index, mount in enumerate(("fixed", "stabilised", "active")):
+            bars = bars_of(axes[0, col])[mount_index]
+            expected = [1000 * df[(df.motion == m) & (df.shutter == s) & (df["mount"] == mount)].common_abs_error_m.iloc[0]
+                        for m in ("hover", "flight") for s in ("global", "rolling")]
+            np.testing.assert_allclose([b.get_height() for b in bars], np.nan_to_num(expected), atol=1e-12)
+            streaks = [b.get_height() for b in bars_of(axes[2, col])[mount_index]]
+            assert streaks == [float(x) for x in df[df["mount"] == mount].mean_streak_px]
+    missing = [line for line in axes[0, 1].lines if line.get_marker() == "x"]
+    assert sum(len(line.get_xdata()) for line in missing) == 6  # aruco hover: 3 mounts × 2 shutters
+    assert not [line for line in axes[0, 0].lines if line.get_marker() == "x"]
+
+
+def test_forest_prints_each_rows_unit_and_says_when_there_is_no_interval():
+    import math
+
+    import pandas as pd
+
+    from gimbal_lab.plotting import study
+
+    verdicts = pd.DataFrame([
+        dict(id="H1", condition="c1", a="a", b="b", kind="less", verdict="holds", difference=-0.020, low=-0.025,
+             high=-0.015, delta=0.001, n=10, unit="m"),
+        dict(id="H3", condition="c2", a="a", b="b", kind="less", verdict="does not hold", difference=2.0, low=1.0,
+             high=3.0, delta=1.0, n=10, unit="px"),
+        dict(id="H4", condition="c3", a="a", b="b", kind="less", verdict="inconclusive", difference=math.nan,
+             low=math.nan, high=math.nan, delta=0.001, n=0, unit="m"),
+    ])
+    ax = study.plot_forest(verdicts)
+    texts = [t.get_text() for t in ax.texts]
+    assert texts == ["-20.0 [-25.0, -15.0] mm", "+2.0 [+1.0, +3.0] px", "no interval: 0 complete pair(s)"]

@@ -185,8 +185,9 @@ def plot_forest(verdicts, ax=None):
     units = verdicts["unit"] if "unit" in verdicts else ["m"] * n
     for yi, r, unit in zip(y, verdicts.itertuples(), units):
         k, name = (1000.0, "mm") if unit == "m" else (1.0, unit)
-        ax.annotate(f"{k * r.difference:+.1f} [{k * r.low:+.1f}, {k * r.high:+.1f}] {name}",
-                    (1.01, yi), xycoords=("axes fraction", "data"), fontsize=6.5, va="center")
+        text = (f"{k * r.difference:+.1f} [{k * r.low:+.1f}, {k * r.high:+.1f}] {name}" if np.isfinite(r.low)
+                else f"no interval: {r.n} complete pair(s)")
+        ax.annotate(text, (1.01, yi), xycoords=("axes fraction", "data"), fontsize=6.5, va="center")
     ax.set_ylim(-0.7, n - 0.3)
     ax.grid(axis="x", alpha=0.3)
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, frameon=False, fontsize=8)

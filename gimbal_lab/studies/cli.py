@@ -25,7 +25,7 @@ def _positive_int(text: str) -> int:
 def _add_run_options(p) -> None:
     p.add_argument("--out", default="results", metavar="DIR",
                    help="output folder (default: results): the report goes to DIR/STUDY, finished runs to DIR/store")
-    p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml)")
+    p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=_positive_int, metavar="N", help="replicates per cell (overrides --config)")
     p.add_argument("--jobs", type=_positive_int, metavar="N", help="local worker processes (default: every CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS",
