@@ -286,3 +286,24 @@ def test_markdown_gives_counts_reasons_and_detection_rates():
     assert "the opposite is measured: stabilised exceeds fixed by 50.00 mm" in text
     assert "| sphere | hover | global | 0.25 | 0.25 | 0.25 |" in text
     assert text.count("| **holds** |") == 63
+
+
+def test_report_writes_tables_verdicts_figures_and_metadata(tmp_path):
+    """A short version of the study (one target and motion, 12 frames a run) through write_report."""
+    import json
+
+    from gimbal_lab.runner import run
+
+    study = md.MovingDroneStudy(replicates=2, fps=10.0, period_s=0.6)
+    results = run(md.grid(study, targets=("sphere",), motions=("vibration",)), jobs=1, progress=False)
+    written = md.write_report(tmp_path, results, study)
+    names = sorted(p.relative_to(tmp_path).as_posix() for p in written)
+    for name in ("summary.csv", "replicates.parquet", "replicates.csv", "verdicts.csv", "claims.md", "study.json",
+                 "figures/mount_bars.png", "figures/example_frames_sphere.svg", "figures/hypotheses_forest.png"):
+        assert name in names and (tmp_path / name).stat().st_size > 0
+    meta = json.loads((tmp_path / "study.json").read_text())
+    assert meta["study"] == "moving-drone" and meta["runs"] == 12 and meta["parameters"] == study.to_dict()
+    verdicts = pd.read_csv(tmp_path / "verdicts.csv")
+    assert list(verdicts["id"].value_counts().sort_index()) == [4, 4, 2]  # H1, H3, H4 (no flight: no H2)
+    assert len(pd.read_parquet(tmp_path / "replicates.parquet")) == 12
+    assert "# Moving drone: hypotheses H1–H4, measured" in (tmp_path / "claims.md").read_text()

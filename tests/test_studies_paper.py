@@ -202,3 +202,24 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
         assert (frames, width) == (cell[0].n_frames, 2 * cell[0].width + 4)
     # a target whose pair is missing gets no clip (e.g. a study run for one target)
     assert paper.write_clips(tmp_path / "none", results[:1], study) == []
+
+
+def test_report_writes_tables_claims_figures_and_metadata(tmp_path):
+    """The whole 16-cell grid, 2 replicates of 2 revolutions of 9 frames, through write_report."""
+    import json
+
+    import pandas as pd
+
+    from gimbal_lab.runner import run
+
+    study = paper.PaperStudy(replicates=2, period_s=0.3)
+    results = run(paper.grid(study), jobs=1, progress=False)
+    written = paper.write_report(tmp_path, results, study)
+    names = {p.relative_to(tmp_path).as_posix() for p in written}
+    for name in ("summary.csv", "replicates.parquet", "frames.parquet", "verdicts.csv", "claims.md", "study.json",
+                 "figures/fig11_sphere_error.png", "figures/fig14_aruco_xyz_active.svg", "figures/claims_forest.png"):
+        assert name in names and (tmp_path / name).stat().st_size > 0
+    meta = json.loads((tmp_path / "study.json").read_text())
+    assert meta["study"] == "paper" and meta["runs"] == 32 and meta["parameters"] == study.to_dict()
+    assert len(pd.read_parquet(tmp_path / "frames.parquet")) == 32 * 18
+    assert len(pd.read_csv(tmp_path / "verdicts.csv")) == 27

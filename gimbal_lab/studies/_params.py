@@ -8,7 +8,7 @@ import tomllib
 from dataclasses import asdict, fields
 from pathlib import Path
 
-__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV"]
+__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files"]
 
 #: Environment variable that sets the extension studies' replicate count in their notebooks.
 REPLICATES_ENV = "GIMBAL_LAB_REPLICATES"
@@ -40,6 +40,15 @@ class StudyParams:
 
     _TABLE = ""
 
+    def _check_replicates(self) -> None:
+        """Validate (and normalise) ``replicates``, ``first_seed`` and ``revolutions``, naming the field."""
+        from ..simulation import _number
+
+        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
+        set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
+        set_("revolutions", _number("revolutions", self.revolutions, low=2.0, high=1000.0))
+
     @property
     def seeds(self) -> list[int]:
         """Replicate i runs with seed ``first_seed + i``."""
@@ -67,3 +76,34 @@ class StudyParams:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def report_pyplot():
+    """matplotlib's pyplot on a file backend (a report is written without a display)."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "svg", "pdf"):
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def write_report_files(folder, writers, study_name: str, params: StudyParams, n_runs: int) -> list[Path]:
+    """Write each ``(file name, writer(path))`` of ``writers`` into ``folder``, then ``study.json``
+    (the study, its parameters, the package version and source hash, the number of runs).
+    Returns the paths written."""
+    import json
+
+    from .. import __version__
+    from ..runner import source_hash
+
+    folder = Path(folder)
+    written = []
+    for name, write in writers:
+        write(folder / name)
+        written.append(folder / name)
+    meta = {"study": study_name, "parameters": params.to_dict(), "package_version": __version__,
+            "source_hash": source_hash(), "runs": n_runs}
+    (folder / "study.json").write_text(json.dumps(meta, indent=1))
+    return written + [folder / "study.json"]

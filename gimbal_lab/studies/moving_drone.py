@@ -35,7 +35,7 @@ from .. import stats
 from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
 from ..simulation import TrackingConfig, _choice, _number
-from ._params import StudyParams
+from ._params import StudyParams, report_pyplot, write_report_files
 from .paper import replicate_phase_s
 
 __all__ = [
@@ -111,10 +111,8 @@ class MovingDroneStudy(StudyParams):
     _TABLE = NAME
 
     def __post_init__(self):
+        self._check_replicates()
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
-        set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
-        set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
-        set_("revolutions", _number("revolutions", self.revolutions, low=2.0, high=1000.0))
         set_("exposure_s", _number("exposure_s", self.exposure_s, low=0.0, low_open=True))
         set_("readout_s", _number("readout_s", self.readout_s, low=0.0, low_open=True))
         # the rest is validated by TrackingConfig, naming the field
@@ -422,34 +420,20 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     ``study.json`` and ``figures/`` (bars of error, detection rate and streak; the example frames
     of each target; the forest plot of the hypotheses), PNG and SVG.
     """
-    import json
+    from .. import plotting
 
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "svg", "pdf"):
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .. import __version__, plotting
-    from ..runner import source_hash
-
+    plt = report_pyplot()
     folder = Path(folder)
-    written = []
     replicates = replicate_table(results)
     summary = summary_table(replicates)
     verdicts = check_hypotheses(replicates)
-    for name, write in (
+    written = write_report_files(folder, (
         ("summary.csv", lambda p: summary.to_csv(p, index=False)),
         ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
         ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
         ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
         ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study))),
-        ("study.json", lambda p: p.write_text(json.dumps(
-            {"study": NAME, "parameters": study.to_dict(), "package_version": __version__,
-             "source_hash": source_hash(), "runs": len(results)}, indent=1))),
-    ):
-        write(folder / name)
-        written.append(folder / name)
+    ), NAME, study, len(results))
     figures = folder / "figures"
     save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
     save(plotting.study.plot_mount_bars(summary), "mount_bars")

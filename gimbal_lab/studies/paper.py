@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..simulation import TrackingConfig, _number
-from ._params import StudyParams
+from ..simulation import TrackingConfig
+from ._params import StudyParams, report_pyplot, write_report_files
 
 __all__ = [
     "PaperStudy",
@@ -95,10 +95,7 @@ class PaperStudy(StudyParams):
     _TABLE = NAME
 
     def __post_init__(self):
-        set_ = lambda name, value: object.__setattr__(self, name, value)
-        set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
-        set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
-        set_("revolutions", _number("revolutions", self.revolutions, low=2.0, high=1000.0))
+        self._check_replicates()
         # the rest is validated by TrackingConfig, naming the field
         self.base_config()
 
@@ -460,35 +457,21 @@ def write_report(folder, results, study: PaperStudy) -> list[Path]:
     ``frames.parquet`` (every frame), ``verdicts.csv``, ``claims.md``, ``study.json`` and
     ``figures/`` (Figs. 10–14 and the forest plot of the claims, as PNG and SVG).
     """
-    import json
+    from .. import plotting
 
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "svg", "pdf"):
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .. import __version__, plotting
-    from ..runner import source_hash
-
+    plt = report_pyplot()
     folder = Path(folder)
-    written = []
     replicates = replicate_table(results)
     summary = summary_table(replicates)
     verdicts = check_claims(replicates)
-    for name, write in (
+    written = write_report_files(folder, (
         ("summary.csv", lambda p: summary.to_csv(p, index=False)),
         ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
         ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
         ("frames.parquet", lambda p: frames_table(results).to_parquet(p, index=False)),
         ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
         ("claims.md", lambda p: p.write_text(claims_markdown(verdicts, replicates, study))),
-        ("study.json", lambda p: p.write_text(json.dumps(
-            {"study": NAME, "parameters": study.to_dict(), "package_version": __version__,
-             "source_hash": source_hash(), "runs": len(results)}, indent=1))),
-    ):
-        write(folder / name)
-        written.append(folder / name)
+    ), NAME, study, len(results))
 
     figures = folder / "figures"
     save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))
