@@ -27,7 +27,14 @@ Conventions
   layers and image warps, checked against :meth:`SceneRenderer.render_motion_reference`.
 * Shading: every material is matte, so pyrender's physically based fragment shader is replaced
   by a Lambertian one (colour = albedo × (ambient + sun · cos θ), exact sRGB output): about a
-  third of the frame time on Mesa's CPU rasteriser. Frames are 4× multisampled.
+  third of the frame time on Mesa's CPU rasteriser.
+* Anti-aliasing: a sharp frame is drawn once with one sample per pixel, then again, 4×
+  multisampled, inside the target's projected bounding box only (``antialias="window"``, the
+  default; it costs about half of a frame multisampled everywhere, ``antialias="full"``). The
+  target's pixels are those of the full multisampled render, bit for bit: the box is computed
+  from the true poses, which the renderer has anyway. Elsewhere one sample per pixel differs
+  where the ground's far edge meets the sky and, over the textured ground (shaded once per
+  pixel either way), by rounding: one grey level in about 0.5 % of the values, rarely two.
 
 OpenGL backend
 --------------
@@ -412,12 +419,20 @@ def _make_renderer_class(pyrender):
             self._program_cache = _ProgramCache()
             self._rgba = np.empty((height, width, 4), dtype=np.uint8)
             # (x0, y0, w, h) in image pixels (rows from the top): when set, only that rectangle is
-            # cleared, drawn (scissor test), resolved and read back, as RGBA. The pixels inside
-            # are those of a full render.
+            # cleared and drawn (scissor test). The pixels inside are those of a full render.
             self.region = None
+            # True: draw into the 4× multisampled buffer and resolve ``region`` (or everything)
+            # into the single-sample one; False: draw straight into the single-sample buffer,
+            # on top of what an earlier pass left there outside ``region``.
+            self.multisample = True
+            # What a render returns: "auto" (``region`` as RGBA when set, else the whole buffer
+            # as RGB), "all" (the whole single-sample buffer as RGB) or "none" (an empty array).
+            self.readback = "auto"
 
         def _configure_forward_pass_viewport(self, flags):
             super()._configure_forward_pass_viewport(flags)
+            if not self.multisample:
+                gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, self._main_fb)
             if self.region is None:
                 gl.glDisable(gl.GL_SCISSOR_TEST)
             else:
@@ -434,13 +449,19 @@ def _make_renderer_class(pyrender):
             # Resolve the 4× multisampled colour buffer and read it into a reused array; the
             # stock method also reads and linearises depth, which the lab never uses.
             width, height = self._main_fb_dims
-            x0, y0, w, h = self.region if self.region is not None else (0, 0, width, height)
-            y0 = height - y0 - h  # GL rows run bottom-up
-            gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, self._main_fb_ms)
-            gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, self._main_fb)
-            gl.glBlitFramebuffer(x0, y0, x0 + w, y0 + h, x0, y0, x0 + w, y0 + h, gl.GL_COLOR_BUFFER_BIT, gl.GL_LINEAR)
+            if self.multisample:
+                x0, y0, w, h = self.region if self.region is not None else (0, 0, width, height)
+                y0 = height - y0 - h  # GL rows run bottom-up
+                gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, self._main_fb_ms)
+                gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, self._main_fb)
+                gl.glBlitFramebuffer(x0, y0, x0 + w, y0 + h, x0, y0, x0 + w, y0 + h, gl.GL_COLOR_BUFFER_BIT,
+                                     gl.GL_LINEAR)
             gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, self._main_fb)
-            return self._read_rgb() if self.region is None else self._read_region()
+            if self.readback == "none":
+                return np.empty((0, 0, 3), dtype=np.uint8)
+            if self.readback == "all" or self.region is None:
+                return self._read_rgb()
+            return self._read_region()
 
         def read_color_buf(self):  # path of backends without framebuffer objects (OSMesa)
             gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, 0)
@@ -562,6 +583,9 @@ _BACKGROUND_STEP_PX = 2.0
 _MIN_SLICES = 16
 _BACKGROUND_WARPS = 8
 _LAYER_MARGIN_PX = 2  # the target layer's box beyond its projected bounds: rim and bilinear taps
+# A target window larger than this share of the canvas is not worth a second pass: the whole
+# canvas is multisampled in one (measured: one pass 4× multisampled costs about two single-sample ones).
+_WINDOW_MAX_SHARE = 0.4
 _FEATHER_PX = 4  # blend between the target region's own background and the groups' one
 # pose_fn is sampled at knots _FIRST_KNOT_SPACING_S apart or closer, halved while the quintic
 # and a cubic spline through them disagree by more than _MOTION_TOL_PX somewhere on the image
@@ -578,6 +602,23 @@ def _rigid_inverse(T: np.ndarray) -> np.ndarray:
     out[:3, :3] = T[:3, :3].T
     out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
     return out
+
+
+def _projected_box(corners_cam: np.ndarray, K: np.ndarray, size, margin_px: int):
+    """The pixel rectangle (x0, y0, w, h) of an image of ``size`` = (width, height) holding the
+    projection of every point inside the convex hull of ``corners_cam`` (camera frame, (n, 3)),
+    grown by ``margin_px``; None when that hull is behind the camera or projects outside the
+    image, "all" when it straddles the near plane (its projection is unbounded)."""
+    width, height = size
+    in_front = corners_cam[:, 2] > _Z_NEAR_M
+    if not np.all(in_front):
+        return "all" if np.any(in_front) else None
+    uv = (corners_cam @ K.T)[:, :2] / corners_cam[:, 2:3]
+    x0 = max(0, int(np.floor(uv[:, 0].min())) - margin_px)
+    y0 = max(0, int(np.floor(uv[:, 1].min())) - margin_px)
+    x1 = min(width, int(np.ceil(uv[:, 0].max())) + margin_px + 1)
+    y1 = min(height, int(np.ceil(uv[:, 1].max())) + margin_px + 1)
+    return (x0, y0, x1 - x0, y1 - y0) if x1 > x0 and y1 > y0 else None
 
 
 def _translation(dx: float, dy: float) -> np.ndarray:
@@ -654,16 +695,8 @@ class _ExposureMotion:
         # the layer's rectangle on the canvas (None: the target is not in front of the camera)
         width, height_px = canvas_size
         corners = (S_ref[:3, :3] @ np.asarray(target_points_m, float).T).T + centre
-        self.layer_box = None
-        if np.all(corners[:, 2] > _Z_NEAR_M):
-            uv = (corners @ K.T)[:, :2] / corners[:, 2:3]
-            x0 = max(0, int(np.floor(uv[:, 0].min())) - _LAYER_MARGIN_PX)
-            y0 = max(0, int(np.floor(uv[:, 1].min())) - _LAYER_MARGIN_PX)
-            x1 = min(width, int(np.ceil(uv[:, 0].max())) + _LAYER_MARGIN_PX + 1)
-            y1 = min(height_px, int(np.ceil(uv[:, 1].max())) + _LAYER_MARGIN_PX + 1)
-            if x1 > x0 and y1 > y0:
-                self.layer_box = (x0, y0, x1 - x0, y1 - y0)
-        elif np.any(corners[:, 2] > _Z_NEAR_M):  # partly behind the camera: the layer is the canvas
+        self.layer_box = _projected_box(corners, K, canvas_size, _LAYER_MARGIN_PX)
+        if self.layer_box == "all":  # partly behind the camera: the layer is the canvas
             self.layer_box = (0, 0, width, height_px)
         self.bg_points = np.array([[0, width - 1, 0, width - 1, 0.5 * (width - 1)],
                                    [0, 0, height_px - 1, height_px - 1, 0.5 * (height_px - 1)],
@@ -942,10 +975,13 @@ class SceneRenderer:
         Zero (default) makes frames a pure function of the poses.
     seed : int or numpy.random.Generator, optional
         Noise source; the same seed gives the same noisy frames.
+    antialias : {"window", "full"}
+        Where a sharp frame is 4× multisampled: around the target only (default, about half
+        the cost) or everywhere. The target's pixels are the same either way (module notes).
 
     Notes
     -----
-    The scene is built once; :meth:`render` only moves the camera and target nodes. Rendering
+    The scene is built once; :meth:`render` only moves the camera and target nodes. The target
     is 4× multisampled (anti-aliased edges keep centroids and corners sub-pixel accurate).
     A renderer owns an OpenGL context: call :meth:`close` or use it as a context manager, and
     never fork a process that holds one (see the module docstring).
@@ -974,6 +1010,7 @@ class SceneRenderer:
         marker_id: int = 0,
         noise_std: float = 0.0,
         seed: int | np.random.Generator | None = None,
+        antialias: str = "window",
     ):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
@@ -1001,6 +1038,9 @@ class SceneRenderer:
         if not np.isfinite(self.noise_std) or self.noise_std < 0:
             raise ValueError(f"noise_std must be >= 0 grey levels, got {noise_std}")
         self._rng = np.random.default_rng(seed)
+        if antialias not in ("window", "full"):
+            raise ValueError(f"antialias must be 'window' or 'full', got {antialias!r}")
+        self.antialias = antialias
 
         self._setup_distortion()
         self._pyrender = _import_pyrender()
@@ -1076,7 +1116,8 @@ class SceneRenderer:
 
     # ---------------------------------------------------------------------------------------
     def _render_canvas(self, T_world_cam: np.ndarray, T_world_target: np.ndarray) -> np.ndarray:
-        """The pinhole canvas image, RGB uint8 (H_canvas, W_canvas, 3)."""
+        """The pinhole canvas image, RGB uint8 (H_canvas, W_canvas, 3), as the GL renderer's
+        ``region``/``multisample``/``readback`` settings ask (by default 4× multisampled)."""
         T_world_cam = _check_pose("T_world_cam", T_world_cam)
         T_world_target = _check_pose("T_world_target", T_world_target)
         if self._renderer is None:
@@ -1087,6 +1128,44 @@ class SceneRenderer:
         image = self._renderer.render(self._scene, self._flags)
         if image is None:  # backends without framebuffer objects render to the front buffer
             image = self._renderer.read_color_buf()
+        return image
+
+    def _target_bounds_m(self) -> np.ndarray:
+        """Corners of a box holding the target, in the target's frame, (n, 3)."""
+        if self.target == "sphere":
+            r = self.sphere_radius_m
+            return np.array([[x, y, z] for x in (-r, r) for y in (-r, r) for z in (-r, r)])
+        s = 0.5 * self.plate_size_m
+        return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+
+    def _target_box(self, T_world_cam: np.ndarray, T_world_target: np.ndarray):
+        """The canvas rectangle (x0, y0, w, h) holding every pixel the target touches, with a
+        margin; None when the target is wholly out of the canvas or behind the camera, "all"
+        when it is partly behind the camera."""
+        T_cam_target = _rigid_inverse(T_world_cam) @ T_world_target
+        corners = self._target_bounds_m() @ T_cam_target[:3, :3].T + T_cam_target[:3, 3]
+        C = self.canvas_intrinsics
+        return _projected_box(corners, C.K, C.size, _LAYER_MARGIN_PX)
+
+    def _render_sharp_canvas(self, T_world_cam, T_world_target) -> np.ndarray:
+        """The sharp canvas, anti-aliased as ``self.antialias`` says (see the module notes)."""
+        if self.antialias == "full" or not self._flags:
+            return self._render_canvas(T_world_cam, T_world_target)
+        T_world_cam = _check_pose("T_world_cam", T_world_cam)
+        T_world_target = _check_pose("T_world_target", T_world_target)
+        box = self._target_box(T_world_cam, T_world_target)
+        width, height = self.canvas_intrinsics.size
+        if isinstance(box, str) or (box is not None and box[2] * box[3] > _WINDOW_MAX_SHARE * width * height):
+            return self._render_canvas(T_world_cam, T_world_target)
+        renderer = self._renderer
+        try:
+            renderer.multisample, renderer.readback = False, ("all" if box is None else "none")
+            image = self._render_canvas(T_world_cam, T_world_target)
+            if box is not None:
+                renderer.multisample, renderer.region, renderer.readback = True, box, "all"
+                image = self._render_canvas(T_world_cam, T_world_target)
+        finally:
+            renderer.multisample, renderer.region, renderer.readback = True, None, "auto"
         return image
 
     def _finish(self, canvas: np.ndarray) -> np.ndarray:
@@ -1118,7 +1197,7 @@ class SceneRenderer:
         ndarray, shape (H, W, 3), uint8
             sRGB image of the output camera (distorted if the renderer has a distortion).
         """
-        return self._finish(self._render_canvas(T_world_cam, T_world_target))
+        return self._finish(self._render_sharp_canvas(T_world_cam, T_world_target))
 
     def render_exposure(self, pose_fn, t_start_s: float, exposure_s: float, n_subframes: int) -> np.ndarray:
         """Render a frame whose exposure integrates motion of camera and target (motion blur).
@@ -1342,7 +1421,10 @@ class SceneRenderer:
     # ---------------------------------------------------------------------------------------
     def _render_layer(self, T_world_cam, T_world_target, layer: str, region=None) -> np.ndarray:
         """The background alone (target hidden; RGB canvas) or the target alone on a transparent
-        background (RGBA of ``region`` = (x0, y0, w, h); alpha is the 4× multisample coverage)."""
+        background (RGBA of ``region`` = (x0, y0, w, h); alpha is the 4× multisample coverage).
+        Both are 4× multisampled: a single-sample background changes the rim the warped target
+        is composited on by a grey level here and there, which moved a passive sphere's estimate
+        by up to 27 mm on single frames (the window trick of sharp frames does not carry over)."""
         scene, target_mesh, ground_mesh = self._scene, self._target_node.mesh, self._ground_node.mesh
         bg_color = scene.bg_color
         try:
@@ -1397,12 +1479,7 @@ class SceneRenderer:
         C = self.canvas_intrinsics
         width, height = C.size
         out_height = self.intrinsics.height
-        if self.target == "sphere":
-            r = self.sphere_radius_m
-            bounds_m = np.array([[x, y, z] for x in (-r, r) for y in (-r, r) for z in (-r, r)])
-        else:
-            s = 0.5 * self.plate_size_m
-            bounds_m = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+        bounds_m = self._target_bounds_m()
         t_lo, t_hi = t0, t0 + readout + exposure
         motion = _ExposureMotion(pose_fn, t_lo, t_hi, C.K, (width, height), bounds_m,
                                  "sphere" if self.target == "sphere" else "plate")
@@ -1656,8 +1733,10 @@ def add_sensor_noise(image: np.ndarray, std: float, rng: np.random.Generator) ->
     Every pixel and channel independently becomes clip(round(value + n), 0, 255) with
     n ~ N(0, std²). For integer ``value`` that is value + round(n), so the rounded Gaussian is drawn
     directly: 16 random bits per sample index a table of its inverse CDF at the 2¹⁶ mid-quantiles
-    (tails beyond ±4.2 σ, probability 3·10⁻⁵, are cut). It costs about a tenth of drawing
-    floating-point normals for a 640 × 480 RGB frame, and is exact in distribution otherwise.
+    (tails beyond ±4.2 σ, probability 3·10⁻⁵, are cut). The bits are the bit generator's raw
+    64-bit words, four samples to a word, taken in little-endian order (for numpy's default
+    PCG64 the same bytes as ``rng.bytes``, several times faster). It costs about a tenth of
+    drawing floating-point normals for a 640 × 480 RGB frame, and is exact in distribution.
 
     Parameters
     ----------
@@ -1679,7 +1758,8 @@ def add_sensor_noise(image: np.ndarray, std: float, rng: np.random.Generator) ->
     if std == 0:
         return image
     table = _rounded_gaussian_table(float(std))
-    draws = np.frombuffer(rng.bytes(2 * image.size), dtype=np.uint16).reshape(image.shape)
+    words = rng.bit_generator.random_raw(-(-image.size // 4))
+    draws = words.astype("<u8", copy=False).view(np.uint16)[: image.size].reshape(image.shape)
     noisy = np.take(table, draws)
     noisy += image
     np.clip(noisy, 0, 255, out=noisy)

@@ -201,7 +201,7 @@ def test_vanishing_exposure_reproduces_the_sharp_frame(sphere_scene, marker_scen
     pose_fn = CASES["flight"][0]
     for t0 in (0.3, 1.1, 1.6):
         fast = scene.render_motion(pose_fn, t0, 1e-6)
-        sharp = scene.render(*pose_fn(t0 + 0.5e-6))
+        sharp = scene._render_canvas(*pose_fn(t0 + 0.5e-6))  # multisampled everywhere, as the layers
         assert np.abs(fast.astype(int) - sharp).max() <= 1, t0
 
 
@@ -213,14 +213,15 @@ def test_reference_bands_agree(sphere_scene):
     rows = sphere_scene.render_motion_reference(pose_fn, 0.9, 0.0, READOUT_S, n_bands=CAM.height)
     assert np.array_equal(grid, rows)
     # and a row band really is that row at its own instant
+    # (the reference is multisampled everywhere: the sharp frame's full multisampled canvas)
     for r in (0, 137, CAM.height - 1):
-        assert np.array_equal(grid[r], sphere_scene.render(*pose_fn(0.9 + r * READOUT_S / CAM.height))[r])
+        assert np.array_equal(grid[r], sphere_scene._render_canvas(*pose_fn(0.9 + r * READOUT_S / CAM.height))[r])
 
 
 def test_scissored_render_is_the_full_render_cropped(sphere_scene):
     """The reference renders bands of rows with a scissor rectangle: the pixels must not change."""
     T_world_cam, T_world_target = CASES["circle"][0](0.4)
-    full = sphere_scene.render(T_world_cam, T_world_target)
+    full = sphere_scene._render_canvas(T_world_cam, T_world_target)  # multisampled everywhere
     sphere_scene._renderer.region = (100, 37, 300, 211)
     try:
         part = sphere_scene._render_canvas(T_world_cam, T_world_target)
@@ -228,7 +229,7 @@ def test_scissored_render_is_the_full_render_cropped(sphere_scene):
         sphere_scene._renderer.region = None
     assert part.shape == (211, 300, 4)
     assert np.array_equal(part[:, :, :3], full[37:248, 100:400])
-    assert np.array_equal(sphere_scene.render(T_world_cam, T_world_target), full)  # the state is restored
+    assert np.array_equal(sphere_scene._render_canvas(T_world_cam, T_world_target), full)  # state restored
 
 
 def test_interpolated_motion_against_pose_fn(sphere_scene):
