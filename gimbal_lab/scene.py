@@ -28,11 +28,12 @@ Conventions
 * Shading: every material is matte, so pyrender's physically based fragment shader is replaced
   by a Lambertian one (colour = albedo × (ambient + sun · cos θ), exact sRGB output): about a
   third of the frame time on Mesa's CPU rasteriser.
-* Anti-aliasing: a sharp frame is drawn once with one sample per pixel, then again, 4×
-  multisampled, inside the target's projected bounding box only (``antialias="window"``, the
-  default; it costs about half of a frame multisampled everywhere, ``antialias="full"``). The
+* Anti-aliasing: a sharp frame is the background (the scene without the target) drawn with one
+  sample per pixel, with the target's projected bounding box drawn again, 4× multisampled, on
+  top (``antialias="window"``, the default; ``antialias="full"`` multisamples everything). The
   target's pixels are those of the full multisampled render, bit for bit: the box is computed
-  from the true poses, which the renderer has anyway. Elsewhere one sample per pixel differs
+  from the true poses, which the renderer has anyway. The background is drawn again only when
+  the camera moves: a fixed camera's frame costs one small multisampled window. Elsewhere one sample per pixel differs
   where the ground's far edge meets the sky and, over the textured ground (shaded once per
   pixel either way), by rounding: one grey level in about 0.5 % of the values, rarely two.
 
@@ -1057,6 +1058,8 @@ class SceneRenderer:
         self._motion_acc = None  # float32 accumulator for render_motion, allocated on first use
         self._motion_stats = None  # what the last render_motion did (slices, warps, pose calls)
         self._output_rows = None  # output row of each canvas pixel (rolling shutter), on first use
+        self._background = None  # (camera pose bytes, canvas without the target) of the last sharp frame
+        self.background_renders = 0  # how many sharp frames drew the background (the rest reused it)
 
     # ---------------------------------------------------------------------------------------
     def _setup_distortion(self) -> None:
@@ -1157,16 +1160,32 @@ class SceneRenderer:
         width, height = self.canvas_intrinsics.size
         if isinstance(box, str) or (box is not None and box[2] * box[3] > _WINDOW_MAX_SHARE * width * height):
             return self._render_canvas(T_world_cam, T_world_target)
-        renderer = self._renderer
-        try:
-            renderer.multisample, renderer.readback = False, ("all" if box is None else "none")
-            image = self._render_canvas(T_world_cam, T_world_target)
-            if box is not None:
-                renderer.multisample, renderer.region, renderer.readback = True, box, "all"
-                image = self._render_canvas(T_world_cam, T_world_target)
-        finally:
-            renderer.multisample, renderer.region, renderer.readback = True, None, "auto"
+        image = self._background_canvas(T_world_cam, T_world_target).copy()
+        if box is not None:
+            x0, y0, w, h = box
+            renderer = self._renderer
+            try:
+                renderer.region = box
+                image[y0 : y0 + h, x0 : x0 + w] = self._render_canvas(T_world_cam, T_world_target)[:, :, :3]
+            finally:
+                renderer.region = None
         return image
+
+    def _background_canvas(self, T_world_cam: np.ndarray, T_world_target: np.ndarray) -> np.ndarray:
+        """The canvas without the target, one sample per pixel; rendered again only when the
+        camera pose differs (bit for bit) from the last one's. Outside the target's box it is the
+        scene's single-sample image: the target casts no shadow and reflects nothing."""
+        key = T_world_cam.tobytes()
+        if self._background is None or self._background[0] != key:
+            renderer, target_mesh = self._renderer, self._target_node.mesh
+            try:
+                renderer.multisample, renderer.readback, target_mesh.is_visible = False, "all", False
+                canvas = self._render_canvas(T_world_cam, T_world_target)
+            finally:
+                renderer.multisample, renderer.readback, target_mesh.is_visible = True, "auto", True
+            self._background = (key, canvas)
+            self.background_renders += 1
+        return self._background[1]
 
     def _finish(self, canvas: np.ndarray) -> np.ndarray:
         """Canvas → output image: lens distortion, then sensor noise."""
@@ -1694,6 +1713,7 @@ class SceneRenderer:
                 self._platform.delete_context()
                 self._renderer = None
                 self._platform = None
+                self._background = None
 
     def __enter__(self) -> "SceneRenderer":
         return self

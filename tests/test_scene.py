@@ -476,6 +476,19 @@ def test_windowed_antialiasing_keeps_every_target_pixel(target, lens):
         full.close()
 
 
+def test_a_still_camera_reuses_its_background():
+    """A fixed camera draws the background once; its frames are those of a renderer drawing
+    everything afresh each time (bit for bit), and a camera that moves draws it again."""
+    target_path = [target_pose(T_HOME, np.array([x, 0.2, 3.0])) for x in (-0.6, 0.0, 0.5)]
+    with SceneRenderer(CAM, DIST, target="aruco") as reusing, SceneRenderer(CAM, DIST, target="aruco") as fresh:
+        for T_world_target in target_path:
+            fresh._background = None
+            assert np.array_equal(reusing.render(T_HOME, T_world_target), fresh.render(T_HOME, T_world_target))
+        assert reusing.background_renders == 1 and fresh.background_renders == 3
+        reusing.render(camera_pose(0.01), target_path[0])
+        assert reusing.background_renders == 2
+
+
 def test_antialias_must_be_window_or_full():
     with pytest.raises(ValueError, match="antialias"):
         SceneRenderer(CAM, target="sphere", antialias="msaa")
