@@ -35,6 +35,8 @@ __all__ = ["ShapedNoise", "HoverSway", "Vibration", "WaypointFlight", "BodyMotio
            "body_rates_from_euler", "GRAVITY_M_S2"]
 
 GRAVITY_M_S2 = 9.80665
+_BLOCK = 32  # instants per block of ShapedNoise's angle-addition stepping
+_GRID_MIN = 16  # fewer instants are evaluated directly
 
 
 def _number(name, value, low=None, low_open=False):
@@ -93,6 +95,8 @@ class ShapedNoise:
         self.amplitude = amp * scale
         self._omega = 2.0 * np.pi * self.freq_hz
         self._sin_phase = np.sin(self.phase)
+        self._last = None  # (times as bytes, their phasors): see _grid_phasors
+        self._steps = None  # (spacing, exp(iω·j·spacing) for j < _BLOCK)
 
     def psd(self, f_hz) -> np.ndarray:
         """One-sided power spectral density of the process, unit²/Hz (analytic, for checks).
@@ -113,16 +117,63 @@ class ShapedNoise:
         flat = t.reshape(-1)
         out = np.empty_like(flat)
         for start in range(0, flat.size, 4096):  # chunks keep the (times × components) matrix small
-            arg = np.outer(flat[start:start + 4096], self._omega) + self.phase
+            chunk = flat[start:start + 4096]
+            z = self._grid_phasors(chunk)
+            if z is not None:  # Σ a_k·exp(i(ω_k t + φ_k))·c_k in one complex product
+                if derivative == -1:
+                    w = z @ (self.amplitude / self._omega)
+                    out[start:start + 4096] = w.imag - self._sin_phase @ (self.amplitude / self._omega)
+                elif derivative == 0:
+                    out[start:start + 4096] = (z @ self.amplitude).real
+                elif derivative == 1:
+                    out[start:start + 4096] = -(z @ (self.amplitude * self._omega)).imag
+                else:
+                    out[start:start + 4096] = -(z @ (self.amplitude * self._omega**2)).real
+                continue
+            # a few instants: the one trigonometric function needed
+            arg = np.outer(chunk, self._omega) + self.phase
+            cos = np.cos(arg) if derivative in (0, 2) else None
+            sin = np.sin(arg) if derivative in (-1, 1) else None
             if derivative == -1:
-                out[start:start + 4096] = (np.sin(arg) - self._sin_phase) @ (self.amplitude / self._omega)
+                out[start:start + 4096] = (sin - self._sin_phase) @ (self.amplitude / self._omega)
             elif derivative == 0:
-                out[start:start + 4096] = np.cos(arg) @ self.amplitude
+                out[start:start + 4096] = cos @ self.amplitude
             elif derivative == 1:
-                out[start:start + 4096] = -np.sin(arg) @ (self.amplitude * self._omega)
+                out[start:start + 4096] = -sin @ (self.amplitude * self._omega)
             else:
-                out[start:start + 4096] = -np.cos(arg) @ (self.amplitude * self._omega**2)
+                out[start:start + 4096] = -cos @ (self.amplitude * self._omega**2)
         return out.reshape(t.shape)
+
+    def _grid_phasors(self, t: np.ndarray):
+        """exp(i(ω_k t + φ_k)), (len(t), n_components) complex, when ``t`` holds at least
+        ``_GRID_MIN`` evenly spaced instants (the 1 kHz inner loop, an exposure's knots); else None.
+
+        Each block of ``_BLOCK`` instants starts from its first instant, evaluated directly, and
+        steps by angle addition, exp(i(ω(t_b + jΔ) + φ)) = exp(i(ωt_b + φ))·exp(iωjΔ), from one
+        table of exp(iωjΔ) per spacing: a complex product instead of a sine and a cosine per
+        instant and component, about 8 times faster for 1,000 instants. The rounding (≈ 1e-14
+        of the amplitude) is that of forming ωt + φ directly for t of a few seconds. The last
+        result is kept: the value, rate and integral at the same instants share it.
+        """
+        n = t.size
+        if n < _GRID_MIN:
+            return None
+        key = t.tobytes()
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        dt = (t[-1] - t[0]) / (n - 1)
+        if not dt > 0 or np.any(np.abs(t - (t[0] + dt * np.arange(n))) > 1e-13 * max(1.0, abs(t[-1]))):
+            return None
+        if self._steps is None or abs(self._steps[0] - dt) > 1e-13 * dt:
+            self._steps = (dt, np.exp(1j * np.outer(dt * np.arange(_BLOCK), self._omega)))
+        table = self._steps[1]
+        z = np.empty((n, self._omega.size), dtype=complex)
+        starts = np.exp(1j * (np.outer(t[::_BLOCK], self._omega) + self.phase))
+        for i, b in enumerate(range(0, n, _BLOCK)):
+            m = min(_BLOCK, n - b)
+            np.multiply(starts[i], table[:m], out=z[b:b + m])
+        self._last = (key, z)
+        return z
 
     def value(self, t_s):
         """x(t), same shape as ``t_s``."""
