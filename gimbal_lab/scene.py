@@ -400,6 +400,46 @@ def _make_renderer_class(pyrender):
             defines = "".join(f"#define {k} {v}\n" for k, v in self.defines.items())
             return f"{version}\n{defines}{body}"
 
+        def set_uniform(self, name, value, unsigned=False):
+            # pyrender looks every location up again, and raises and swallows an exception for
+            # each uniform the shader does not use (several per draw with the matte shader). A
+            # uniform keeps its value in its program, so a value already set is not sent again
+            # (the projection, the light and the materials never change).
+            locations = self.__dict__.setdefault("_lab_locations", {})
+            sent = self.__dict__.setdefault("_lab_sent", {})
+            loc = locations.get(name)
+            if loc is None:
+                loc = locations[name] = int(gl.glGetUniformLocation(self._program_id, name))
+            if loc == -1:
+                return
+            if isinstance(value, np.ndarray):
+                if value.ndim == 1:
+                    if unsigned or np.issubdtype(value.dtype, np.unsignedinteger):
+                        kind, value = "u", value.astype(np.uint32)
+                    elif np.issubdtype(value.dtype, np.integer):
+                        kind, value = "i", value.astype(np.int32)
+                    else:
+                        kind, value = "f", value.astype(np.float32)
+                    key = (kind, value.tobytes())
+                    if sent.get(name) != key:
+                        self._FUNC_MAP[(value.shape[0], kind)](loc, 1, value)
+                else:
+                    key = ("m", value.shape, value.astype(np.float32).tobytes())
+                    if sent.get(name) != key:
+                        self._FUNC_MAP[value.shape](loc, 1, gl.GL_TRUE, value)
+            elif isinstance(value, (bool, int, float, np.integer, np.floating)):
+                key = (type(value), value, unsigned)
+                if sent.get(name) != key:
+                    if isinstance(value, (float, np.floating)):
+                        gl.glUniform1f(loc, float(value))
+                    elif unsigned:
+                        gl.glUniform1ui(loc, int(value))
+                    else:
+                        gl.glUniform1i(loc, int(value))
+            else:
+                raise TypeError(f"uniform {name}: unsupported value type {type(value).__name__}")
+            sent[name] = key
+
     class _ProgramCache(ShaderProgramCache):
         # One renderer owns one context, so the context handle is not needed in the key; under
         # OSMesa that handle never compares equal to itself and pyrender's cache never hit.
