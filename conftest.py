@@ -2,6 +2,12 @@
 
 import os
 
+# One BLAS thread in this process and in the notebook kernels it starts (before numpy is
+# imported): the matrices are small and a second thread beside the renderer only spins
+# (gimbal_lab.runner.CHILD_THREAD_LIMITS; the study workers get the same limits anyway).
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
 # Notebooks draw their interactive explorers once, statically (gimbal_lab.plotting.interactive):
 # the kernels nbmake starts inherit this environment.
 os.environ.setdefault("GIMBAL_LAB_WIDGETS", "0")

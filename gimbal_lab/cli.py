@@ -8,7 +8,13 @@ not a branch in this file.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+
+# This process runs studies itself when asked for one job; numpy's BLAS must be limited before
+# numpy is imported (see gimbal_lab.runner.CHILD_THREAD_LIMITS). A value already set is kept.
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
 
 #: Modules that add sub-commands; each has ``add_parsers(subparsers)`` and sets ``func``.
 _COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld", "gimbal_lab.show")

@@ -1300,7 +1300,7 @@ class SceneRenderer:
         acc = self._linear_sum
         for k in range(n):
             T_world_cam, T_world_target = pose_fn(t_start_s + (k + 0.5) * exposure_s / n)
-            linear = cv2.LUT(self._render_canvas(T_world_cam, T_world_target), _DECODE_LUT)
+            linear = cv2.LUT(self._render_sharp_canvas(T_world_cam, T_world_target), _DECODE_LUT)
             if k == 0:
                 acc[...] = linear
             else:
@@ -1409,7 +1409,9 @@ class SceneRenderer:
             As in :meth:`render_motion`.
         n_subframes : int
             Full renders per exposure (≥ 1), at the middles of equal slices, averaged in linear
-            light (global shutter: exactly :meth:`render_exposure`).
+            light (global shutter: exactly :meth:`render_exposure`, sub-frames drawn as
+            :meth:`render` draws a frame; rolling shutter: bands multisampled everywhere, which
+            differ from those only where the ground's far edge meets the sky).
         n_bands : int, optional
             Rolling shutter only: split the output rows into this many bands of equal height,
             each integrating the exposure of its middle row with its own ``n_subframes`` renders

@@ -244,6 +244,29 @@ def test_local_pool_gives_the_same_frames_as_one_process(reference):
     assert results[0] is results[3]
 
 
+def _environment(names):
+    return {name: os.environ.get(name) for name in names}
+
+
+def test_local_workers_start_with_one_blas_thread(monkeypatch):
+    """Workers spawned inside the runner's pool block inherit one BLAS/OpenMP thread; a limit the
+    user set is kept, and the parent's environment is left as it was."""
+    import multiprocessing
+
+    from gimbal_lab.runner import CHILD_THREAD_LIMITS, _single_threaded_children
+
+    names = sorted(CHILD_THREAD_LIMITS)
+    for name in names:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    before = _environment(names)
+    with _single_threaded_children():
+        with multiprocessing.get_context("spawn").Pool(1) as pool:
+            child = pool.apply(_environment, (names,))
+    assert child == {"MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "3", "OPENBLAS_NUM_THREADS": "1"}
+    assert _environment(names) == before
+
+
 def test_dask_executor_gives_the_same_frames_as_one_process(reference):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
