@@ -95,7 +95,8 @@ class ShapedNoise:
         self.amplitude = amp * scale
         self._omega = 2.0 * np.pi * self.freq_hz
         self._sin_phase = np.sin(self.phase)
-        self._last = None  # (times as bytes, their phasors): see _grid_phasors
+        self._last = None  # (times as bytes, their four sums): see _grid_sums
+        self._coefficients = None  # (n_components, 4) complex: a, a·ω, a/ω, a·ω²
         self._steps = None  # (spacing, exp(iω·j·spacing) for j < _BLOCK)
 
     def psd(self, f_hz) -> np.ndarray:
@@ -118,17 +119,16 @@ class ShapedNoise:
         out = np.empty_like(flat)
         for start in range(0, flat.size, 4096):  # chunks keep the (times × components) matrix small
             chunk = flat[start:start + 4096]
-            z = self._grid_phasors(chunk)
-            if z is not None:  # Σ a_k·exp(i(ω_k t + φ_k))·c_k in one complex product
+            sums = self._grid_sums(chunk)
+            if sums is not None:  # columns: Σ a·e^{iθ}, Σ aω·e^{iθ}, Σ (a/ω)·e^{iθ}, Σ aω²·e^{iθ}
                 if derivative == -1:
-                    w = z @ (self.amplitude / self._omega)
-                    out[start:start + 4096] = w.imag - self._sin_phase @ (self.amplitude / self._omega)
+                    out[start:start + 4096] = sums[:, 2].imag - self._sin_phase @ (self.amplitude / self._omega)
                 elif derivative == 0:
-                    out[start:start + 4096] = (z @ self.amplitude).real
+                    out[start:start + 4096] = sums[:, 0].real
                 elif derivative == 1:
-                    out[start:start + 4096] = -(z @ (self.amplitude * self._omega)).imag
+                    out[start:start + 4096] = -sums[:, 1].imag
                 else:
-                    out[start:start + 4096] = -(z @ (self.amplitude * self._omega**2)).real
+                    out[start:start + 4096] = -sums[:, 3].real
                 continue
             # a few instants: the one trigonometric function needed
             arg = np.outer(chunk, self._omega) + self.phase
@@ -144,8 +144,9 @@ class ShapedNoise:
                 out[start:start + 4096] = -cos @ (self.amplitude * self._omega**2)
         return out.reshape(t.shape)
 
-    def _grid_phasors(self, t: np.ndarray):
-        """exp(i(ω_k t + φ_k)), (len(t), n_components) complex, when ``t`` holds at least
+    def _grid_sums(self, t: np.ndarray):
+        """Σ_k c_k·exp(i(ω_k t + φ_k)) for the four coefficient sets c = a, a·ω, a/ω, a·ω² (value,
+        rate, integral, second derivative), (len(t), 4) complex, when ``t`` holds at least
         ``_GRID_MIN`` evenly spaced instants (the 1 kHz inner loop, an exposure's knots); else None.
 
         Each block of ``_BLOCK`` instants starts from its first instant, evaluated directly, and
@@ -167,13 +168,16 @@ class ShapedNoise:
         if self._steps is None or abs(self._steps[0] - dt) > 1e-13 * dt:
             self._steps = (dt, np.exp(1j * np.outer(dt * np.arange(_BLOCK), self._omega)))
         table = self._steps[1]
-        z = np.empty((n, self._omega.size), dtype=complex)
+        if self._coefficients is None:
+            a, w = self.amplitude, self._omega
+            self._coefficients = np.column_stack((a, a * w, a / w, a * w * w)).astype(complex)
+        sums = np.empty((n, 4), dtype=complex)
         starts = np.exp(1j * (np.outer(t[::_BLOCK], self._omega) + self.phase))
         for i, b in enumerate(range(0, n, _BLOCK)):
             m = min(_BLOCK, n - b)
-            np.multiply(starts[i], table[:m], out=z[b:b + m])
-        self._last = (key, z)
-        return z
+            sums[b:b + m] = (starts[i] * table[:m]) @ self._coefficients
+        self._last = (key, sums)
+        return sums
 
     def value(self, t_s):
         """x(t), same shape as ``t_s``."""
