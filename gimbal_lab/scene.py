@@ -627,6 +627,9 @@ _LAYER_MARGIN_PX = 2  # the target layer's box beyond its projected bounds: rim 
 # A target window larger than this share of the canvas is not worth a second pass: the whole
 # canvas is multisampled in one (measured: one pass 4× multisampled costs about two single-sample ones).
 _WINDOW_MAX_SHARE = 0.4
+# Beyond the preimage of a blurred target's region in the background layer: a bilinear tap, the
+# floor/ceil of its corners and one pixel to spare.
+_BACKGROUND_WINDOW_MARGIN_PX = 3
 _FEATHER_PX = 4  # blend between the target region's own background and the groups' one
 # pose_fn is sampled at knots _FIRST_KNOT_SPACING_S apart or closer, halved while the quintic
 # and a cubic spline through them disagree by more than _MOTION_TOL_PX somewhere on the image
@@ -1099,6 +1102,7 @@ class SceneRenderer:
         self._motion_stats = None  # what the last render_motion did (slices, warps, pose calls)
         self._output_rows = None  # output row of each canvas pixel (rolling shutter), on first use
         self._background = None  # (camera pose bytes, canvas without the target) of the last sharp frame
+        self._last_background_window = None  # the multisampled window of the last blurred frame's background
         self.background_renders = 0  # how many sharp frames drew the background (the rest reused it)
 
     # ---------------------------------------------------------------------------------------
@@ -1483,9 +1487,10 @@ class SceneRenderer:
     def _render_layer(self, T_world_cam, T_world_target, layer: str, region=None) -> np.ndarray:
         """The background alone (target hidden; RGB canvas) or the target alone on a transparent
         background (RGBA of ``region`` = (x0, y0, w, h); alpha is the 4× multisample coverage).
-        Both are 4× multisampled: a single-sample background changes the rim the warped target
-        is composited on by a grey level here and there, which moved a passive sphere's estimate
-        by up to 27 mm on single frames (the window trick of sharp frames does not carry over)."""
+        Both are 4× multisampled everywhere (:meth:`_motion_background` multisamples only the
+        part of the background that the target's composite reads: the rest of a single-sample
+        background under the warped rim changed it by a grey level here and there, which moved
+        a passive sphere's estimate by up to 27 mm on single frames)."""
         scene, target_mesh, ground_mesh = self._scene, self._target_node.mesh, self._ground_node.mesh
         bg_color = scene.bg_color
         try:
@@ -1501,6 +1506,47 @@ class SceneRenderer:
             target_mesh.is_visible = True
             ground_mesh.is_visible = True
             scene.bg_color = bg_color
+
+    def _motion_background(self, motion, region, G_group, G_k) -> np.ndarray:
+        """The background layer of :meth:`render_motion` at the reference instant.
+
+        With ``antialias="window"``: one sample per pixel (the sharp frames' background, reused
+        while the camera does not move), 4× multisampled in the window the target's composite
+        reads (``region``'s preimage under every slice's and group's background warp, plus the
+        bilinear taps), so that every pixel of the target's region is the one a background
+        multisampled everywhere gives, bit for bit. Elsewhere the blurred frame is background
+        alone and differs as a sharp frame's background does (module notes)."""
+        T_cam, T_target = motion.T_cam_ref, motion.T_target_ref
+        self._last_background_window = None
+        if self.antialias == "full" or not self._flags:
+            return self._render_layer(T_cam, T_target, "background")
+        background = self._background_canvas(T_cam, T_target).copy()
+        if region is None:
+            return background
+        width, height = self.canvas_intrinsics.size
+        x0, y0, x1, y1 = region
+        corners = np.array([[x0, x1 - 1, x0, x1 - 1], [y0, y0, y1 - 1, y1 - 1], [1.0, 1.0, 1.0, 1.0]])
+        inverses = np.linalg.inv(np.concatenate((G_group, G_k)))
+        sources = _apply_homographies(inverses, corners).reshape(-1, 2)
+        if not np.all(np.isfinite(sources)):
+            return self._render_layer(T_cam, T_target, "background")
+        wx0 = max(0, int(np.floor(sources[:, 0].min())) - _BACKGROUND_WINDOW_MARGIN_PX)
+        wy0 = max(0, int(np.floor(sources[:, 1].min())) - _BACKGROUND_WINDOW_MARGIN_PX)
+        wx1 = min(width, int(np.ceil(sources[:, 0].max())) + _BACKGROUND_WINDOW_MARGIN_PX + 1)
+        wy1 = min(height, int(np.ceil(sources[:, 1].max())) + _BACKGROUND_WINDOW_MARGIN_PX + 1)
+        if wx1 <= wx0 or wy1 <= wy0:
+            return background
+        if (wx1 - wx0) * (wy1 - wy0) > _WINDOW_MAX_SHARE * width * height:
+            return self._render_layer(T_cam, T_target, "background")
+        window = (wx0, wy0, wx1 - wx0, wy1 - wy0)
+        target_mesh, renderer = self._target_node.mesh, self._renderer
+        try:
+            target_mesh.is_visible, renderer.region = False, window
+            background[wy0:wy1, wx0:wx1] = self._render_canvas(T_cam, T_target)[:, :, :3]
+        finally:
+            target_mesh.is_visible, renderer.region = True, None
+        self._last_background_window = window
+        return background
 
     def _canvas_output_rows(self) -> np.ndarray:
         """The output-image row (float, unclipped) each canvas pixel lands on, (H_canvas, W_canvas)."""
@@ -1604,7 +1650,7 @@ class SceneRenderer:
             self._motion_acc = (np.empty((2, height, width, 3), dtype=np.float32),
                                 np.empty((height, width, 3), dtype=np.uint8))
         (acc, warp_buffer), warp_u8 = self._motion_acc
-        bg_u8 = self._render_layer(motion.T_cam_ref, motion.T_target_ref, "background")
+        bg_u8 = self._motion_background(motion, region, G_group, G_k)
         if region is not None:
             layer = self._target_layer(motion.T_cam_ref, motion.T_target_ref, box)
             if not np.any(layer[:, :, 3] > 0):
@@ -1741,6 +1787,7 @@ class SceneRenderer:
             "background_spread_px": bg_spread_px,
             "warped_rows": (u0, u1),
             "target_region": region,
+            "background_window": self._last_background_window,
         }
         return canvas
 
