@@ -16,6 +16,11 @@ Usage::
 
 from __future__ import annotations
 
+import os
+
+# One BLAS thread, as the study's workers run (gimbal_lab.runner); set before numpy is imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import time
 

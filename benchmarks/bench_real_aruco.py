@@ -51,9 +51,13 @@ timed from a grey frame to corners; the tracker's pose step is not included).
 
 from __future__ import annotations
 
+import os
+
+# One BLAS thread, as the study's workers run (gimbal_lab.runner); set before numpy is imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import math
-import os
 import time
 from pathlib import Path
 

@@ -11,8 +11,12 @@ Usage: python benchmarks/bench_study.py [--frames 150] [--no-grid] [--jobs N]
 
 from __future__ import annotations
 
-import argparse
 import os
+
+# One BLAS thread, as the study's workers run (gimbal_lab.runner); set before numpy is imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
 import time
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
