@@ -470,6 +470,43 @@ def _make_renderer_class(pyrender):
             # as RGB), "all" (the whole single-sample buffer as RGB) or "none" (an empty array).
             self.readback = "auto"
 
+        def _forward_pass(self, scene, flags, seg_node_map=None):
+            # pyrender's colour pass for this lab's scenes, without the per-draw work whose result
+            # never changes here: a primitive's program is found once, and the lighting (one sun,
+            # ambient light, no shadows) is bound once per program. Any other kind of pass is
+            # pyrender's own.
+            if flags != pyrender.RenderFlags.OFFSCREEN or seg_node_map is not None:
+                return super()._forward_pass(scene, flags, seg_node_map)
+            self._configure_forward_pass_viewport(flags)
+            gl.glClearColor(*scene.bg_color)
+            gl.glClear(gl.GL_COLOR_BUFFER_BIT | gl.GL_DEPTH_BUFFER_BIT)
+            gl.glEnable(gl.GL_MULTISAMPLE)
+            V, P = self._get_camera_matrices(scene)
+            programs = self.__dict__.setdefault("_lab_programs", {})
+            lit = self.__dict__.setdefault("_lab_lit", set())
+            program = None
+            for node in self._sorted_mesh_nodes(scene):
+                if not node.mesh.is_visible:
+                    continue
+                for primitive in node.mesh.primitives:
+                    program = programs.get(id(primitive))
+                    if program is None:
+                        program = programs[id(primitive)] = self._get_primitive_program(
+                            primitive, flags, pyrender.constants.ProgramFlags.USE_MATERIAL)
+                    program._bind()
+                    program.set_uniform("V", V)
+                    program.set_uniform("P", P)
+                    if id(program) not in lit:
+                        self._bind_lighting(scene, program, node, flags)
+                        lit.add(id(program))
+                    self._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
+                                                  flags=flags)
+                    self._reset_active_textures()
+            if program is not None:
+                program._unbind()
+            gl.glFlush()
+            return self._read_main_framebuffer(scene, flags)
+
         def _configure_forward_pass_viewport(self, flags):
             super()._configure_forward_pass_viewport(flags)
             if not self.multisample:
