@@ -17,10 +17,19 @@ Marker (paper §3.2.2)
     ``cv2.aruco.ArucoDetector`` then ``cv2.solvePnP(..., SOLVEPNP_IPPE_SQUARE)``
     (:class:`ArucoTracker`).
 
-Both detectors take an optional :class:`Rectifier` (``cv2.remap`` to the ideal pinhole image with
-the same K), so "rectify, then detect with a pinhole model" can be compared with "detect on the
-raw image". A frame without a target yields ``None`` (sphere) or an empty dict (markers), never
-an exception.
+Lenses
+    Every function and class that takes ``distortion`` accepts a
+    :class:`~gimbal_lab.camera.BrownConrady` lens, a :class:`~gimbal_lab.camera.KannalaBrandt`
+    fisheye or None (pinhole). The lens sweep compares three ways of handling a lens:
+
+    * ignore it (``distortion=None`` on the raw frame, the paper's setting);
+    * detect on the raw frame and undistort the detected points (``distortion=lens``;
+      :func:`locate_sphere_circle_undistorted` for the paper's circle method);
+    * rectify first with a :class:`Rectifier` (``cv2.remap`` to an ideal pinhole image: the same
+      K for a Brown–Conrady lens, a 90° pinhole of the same size for a fisheye) and detect with
+      the pinhole model of ``rectifier.out_intrinsics``.
+
+A frame without a target yields ``None`` (sphere) or an empty dict (markers), never an exception.
 """
 
 from __future__ import annotations
@@ -31,7 +40,17 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .camera import BrownConrady, Intrinsics, UndistortionError, undistort
+from .camera import (
+    LENS_TYPES,
+    BrownConrady,
+    Intrinsics,
+    KannalaBrandt,
+    UndistortionError,
+    backproject,
+    project,
+    undistort,
+    undistort_pixels,
+)
 
 __all__ = [
     "SphereDetection",
@@ -39,11 +58,13 @@ __all__ = [
     "SphereDetector",
     "locate_sphere_circle",
     "locate_sphere_ellipse",
+    "locate_sphere_circle_undistorted",
     "circle_method_estimate",
     "sphere_silhouette_px",
     "fit_conic",
     "conic_to_ellipse",
     "Rectifier",
+    "FISHEYE_RECTIFIED_HFOV_RAD",
     "MarkerPose",
     "ArucoTracker",
     "REFINEMENT_MODES",
@@ -77,15 +98,17 @@ def _check_rgb(rgb) -> np.ndarray:
     return rgb
 
 
-def _check_intrinsics(intrinsics) -> Intrinsics:
+def _check_intrinsics(intrinsics, name: str = "intrinsics") -> Intrinsics:
     if not isinstance(intrinsics, Intrinsics):
-        raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+        raise TypeError(f"{name} must be an Intrinsics, got {type(intrinsics).__name__}")
     return intrinsics
 
 
-def _check_distortion(distortion) -> BrownConrady | None:
-    if distortion is not None and not isinstance(distortion, BrownConrady):
-        raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+def _check_distortion(distortion) -> BrownConrady | KannalaBrandt | None:
+    if distortion is not None and not isinstance(distortion, LENS_TYPES):
+        raise TypeError(
+            f"distortion must be a BrownConrady, a KannalaBrandt or None, got {type(distortion).__name__}"
+        )
     return distortion
 
 
@@ -101,32 +124,98 @@ def _check_radius(radius_m) -> float:
 # --------------------------------------------------------------------------------------------
 
 
-class Rectifier:
-    """Resample a distorted image into the ideal pinhole image with the same K.
+#: Horizontal field of view of the pinhole image a fisheye is rectified to by default, rad (90°).
+#: A pinhole cannot show 180°, and its image stretches radially like 1/cos²θ; at 90° the
+#: rectified image keeps the central part of a fisheye frame: 45° either side across, about 51°
+#: in the corners of a 4:3 frame.
+FISHEYE_RECTIFIED_HFOV_RAD = math.radians(90.0)
 
-    The maps are computed once (``cv2.initUndistortRectifyMap`` with new camera matrix = K, fixed
-    point ``CV_16SC2``); :meth:`rectify` is one ``cv2.remap`` with bilinear interpolation. After
-    rectification a detector's pixel coordinates obey the pinhole model of ``intrinsics``.
+
+class Rectifier:
+    """Resample a distorted image into an ideal pinhole image.
+
+    The maps are computed once, fixed point (``CV_16SC2``, 1/32 px): for a Brown–Conrady lens
+    ``cv2.initUndistortRectifyMap``, for a fisheye ``cv2.fisheye.initUndistortRectifyMap``, each
+    with the new camera matrix of ``out_intrinsics`` and no rotation. :meth:`rectify` is one
+    ``cv2.remap`` with bilinear interpolation. After rectification a detector's pixel coordinates
+    obey the pinhole model of :attr:`out_intrinsics`: localise and estimate poses with those
+    intrinsics, not the source camera's.
 
     Parameters
     ----------
     intrinsics : Intrinsics
-        The camera; also the geometry of the rectified image.
-    distortion : BrownConrady
+        The source camera (the size of the images :meth:`rectify` accepts).
+    distortion : BrownConrady or KannalaBrandt
         The lens model to remove.
+    out_intrinsics : Intrinsics, optional
+        The pinhole camera of the rectified image (its K and size). Default: ``intrinsics``
+        itself for a Brown–Conrady lens (the same K and size); for a fisheye,
+        ``Intrinsics.from_fov(width, height, FISHEYE_RECTIFIED_HFOV_RAD)``, a 90° pinhole of the
+        source size (with the fisheye's own, shorter focal length the pinhole image would
+        stretch its edges several times over: 3.6× radially at the 185° lens's frame edge).
+
+    Attributes
+    ----------
+    out_intrinsics : Intrinsics
+        The rectified image's pinhole camera.
+
+    Notes
+    -----
+    Paper §4.1.2 (end) and §5: rectifying fisheye images is the third strategy of the lens sweep.
+
+    Examples
+    --------
+    >>> lens, f = KannalaBrandt.equidistant_for_fov(640, math.radians(185.0))
+    >>> rectifier = Rectifier(Intrinsics(f, f, 319.5, 239.5, 640, 480), lens)
+    >>> round(rectifier.out_intrinsics.fx, 2), rectifier.out_intrinsics.size
+    (320.0, (640, 480))
     """
 
-    def __init__(self, intrinsics: Intrinsics, distortion: BrownConrady):
+    def __init__(
+        self,
+        intrinsics: Intrinsics,
+        distortion: BrownConrady | KannalaBrandt,
+        out_intrinsics: Intrinsics | None = None,
+    ):
         self.intrinsics = _check_intrinsics(intrinsics)
-        if not isinstance(distortion, BrownConrady):
-            raise TypeError(f"distortion must be a BrownConrady, got {type(distortion).__name__}")
+        if not isinstance(distortion, LENS_TYPES):
+            raise TypeError(
+                f"distortion must be a BrownConrady or a KannalaBrandt (None: nothing to rectify), "
+                f"got {type(distortion).__name__}"
+            )
         self.distortion = distortion
-        self._map1, self._map2 = cv2.initUndistortRectifyMap(
-            intrinsics.K, distortion.coefficients, None, intrinsics.K, intrinsics.size, cv2.CV_16SC2
-        )
+        fisheye = isinstance(distortion, KannalaBrandt)
+        if out_intrinsics is None:
+            out_intrinsics = (
+                Intrinsics.from_fov(intrinsics.width, intrinsics.height, FISHEYE_RECTIFIED_HFOV_RAD)
+                if fisheye
+                else intrinsics
+            )
+        self.out_intrinsics = _check_intrinsics(out_intrinsics, "out_intrinsics")
+        out = self.out_intrinsics
+        if fisheye:
+            self._map1, self._map2 = cv2.fisheye.initUndistortRectifyMap(
+                intrinsics.K, distortion.coefficients, np.eye(3), out.K, out.size, cv2.CV_16SC2
+            )
+        else:
+            self._map1, self._map2 = cv2.initUndistortRectifyMap(
+                intrinsics.K, distortion.coefficients, None, out.K, out.size, cv2.CV_16SC2
+            )
 
     def rectify(self, rgb: np.ndarray) -> np.ndarray:
-        """Return the rectified copy of ``rgb`` (uint8, shape (H, W, 3), same size as the camera)."""
+        """Return the rectified image of ``rgb``.
+
+        Parameters
+        ----------
+        rgb : ndarray, shape (H, W, 3), uint8
+            A frame of the source camera (its size).
+
+        Returns
+        -------
+        ndarray, shape (H_out, W_out, 3), uint8
+            The image of :attr:`out_intrinsics`; pixels whose ray falls outside the source frame
+            are black.
+        """
         rgb = _check_rgb(rgb)
         if rgb.shape[:2] != (self.intrinsics.height, self.intrinsics.width):
             raise ValueError(
@@ -135,8 +224,33 @@ class Rectifier:
             )
         return cv2.remap(rgb, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
+    def to_source_px(self, uv_rect) -> np.ndarray:
+        """Source (distorted) image pixels at which rectified pixels' rays land.
+
+        The rectified pixel is back-projected through :attr:`out_intrinsics` (a pinhole) and the
+        ray projected through ``intrinsics`` and the lens with :func:`gimbal_lab.camera.project`:
+        the position that :meth:`rectify` samples (its fixed-point maps round it to 1/32 px).
+
+        Parameters
+        ----------
+        uv_rect : array_like, shape (N, 2) or (2,)
+            Pixels of the rectified image.
+
+        Returns
+        -------
+        ndarray, shape (N, 2)
+            Pixels of the source image.
+
+        Raises
+        ------
+        ValueError
+            When ``uv_rect`` has another shape, or a ray lies beyond a fisheye's field limit.
+        """
+        rays = backproject(uv_rect, self.out_intrinsics, None)
+        return project(rays, self.intrinsics, self.distortion)
+
     def __repr__(self) -> str:
-        return f"Rectifier({self.intrinsics!r}, {self.distortion!r})"
+        return f"Rectifier({self.intrinsics!r}, {self.distortion!r}, out_intrinsics={self.out_intrinsics!r})"
 
 
 def _check_rectifier(rectifier) -> Rectifier | None:
@@ -171,6 +285,11 @@ class SphereDetection:
         0 for a contour sampled on the edge itself (an analytic silhouette).
     touches_border : bool
         Whether the contour touches the image border (the target may be cut off).
+    outline_px : ndarray, shape (M, 2), optional
+        The outline ``center_px`` and ``radius_px`` were taken from (from :class:`SphereDetector`:
+        the boundary pixels' centres, before any edge refinement replaced ``contour_px``). None:
+        ``contour_px``. :func:`locate_sphere_circle_undistorted` undistorts it, so that it fits the
+        same outline as the paper's circle.
     """
 
     center_px: np.ndarray
@@ -179,6 +298,7 @@ class SphereDetection:
     area_px: float
     edge_inset_px: float = 0.0
     touches_border: bool = False
+    outline_px: np.ndarray | None = None
 
     def __post_init__(self):
         center = np.array(self.center_px, dtype=float).reshape(-1)
@@ -193,8 +313,13 @@ class SphereDetection:
         inset = float(self.edge_inset_px)
         if not (math.isfinite(inset) and inset >= 0):
             raise ValueError(f"edge_inset_px must be finite and >= 0 px, got {self.edge_inset_px!r}")
+        outline = contour if self.outline_px is None else np.array(self.outline_px, dtype=float)
+        if outline.ndim != 2 or outline.shape[1] != 2 or not np.all(np.isfinite(outline)):
+            raise ValueError(f"outline_px must be a finite (M, 2) array, got shape {np.shape(self.outline_px)}")
         center.setflags(write=False)
         contour.setflags(write=False)
+        outline.setflags(write=False)
+        object.__setattr__(self, "outline_px", outline)
         object.__setattr__(self, "center_px", center)
         object.__setattr__(self, "contour_px", contour)
         object.__setattr__(self, "radius_px", radius)
@@ -264,7 +389,8 @@ class SphereDetector:
         Side of the elliptical kernel of a morphological opening applied to the mask (removes
         speckle); 0 or 1 disables it (the default: rendered images need none).
     rectifier : Rectifier, optional
-        Rectify each frame first; the detection is then in ideal pinhole pixels.
+        Rectify each frame first; the detection is then in the ideal pinhole pixels of
+        ``rectifier.out_intrinsics``, the intrinsics to localise it with.
     min_fill : float
         Smallest fill of the enclosing circle, area/(πR²), for a blob not touching the border
         (0–1). A sphere seen anywhere in a 60° view fills ≥ 0.8; two touching equal balls fill
@@ -403,6 +529,7 @@ class SphereDetector:
                 area_px=area,
                 edge_inset_px=inset,
                 touches_border=border,
+                outline_px=contour.reshape(-1, 2),
             )
             return i, detection
         return None, None
@@ -598,6 +725,81 @@ def locate_sphere_circle(detection: SphereDetection, intrinsics: Intrinsics, rad
     return depth_m * ray
 
 
+def locate_sphere_circle_undistorted(
+    detection: SphereDetection,
+    intrinsics: Intrinsics,
+    radius_m: float,
+    distortion: BrownConrady | KannalaBrandt | None,
+) -> np.ndarray:
+    """The paper's circle method applied after undistorting the contour through the lens.
+
+    The outline the enclosing circle was taken from (``detection.outline_px``: the boundary
+    pixels' centres, not the refined edge points of ``contour_px``, so that the strategies compare
+    the same outline) is undistorted to normalised pinhole coordinates
+    (:func:`gimbal_lab.camera.undistort` with ``distortion``) and mapped back to pixels with the
+    same K, i.e. the outline the ideal
+    pinhole camera with ``intrinsics`` would see; its minimum enclosing circle
+    (``cv2.minEnclosingCircle``) then goes through :func:`locate_sphere_circle` unchanged (same
+    focal length rule, f = (fx + fy)/2). This is "undistort the detected points" for the paper's
+    estimate: it removes the lens but keeps the method's own off-axis bias.
+
+    Parameters
+    ----------
+    detection : SphereDetection
+        A detection on the raw (distorted) image; its ``outline_px`` is used (≥ 3 points).
+    intrinsics : Intrinsics
+        The camera that took the image.
+    radius_m : float
+        True sphere radius r, metres.
+    distortion : BrownConrady, KannalaBrandt or None
+        The lens. None (or a Brown–Conrady lens with all coefficients zero) returns
+        ``locate_sphere_circle(detection, intrinsics, radius_m)`` exactly.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Estimated sphere centre in the camera optical frame, metres.
+
+    Raises
+    ------
+    UndistortionError
+        (a ValueError) When a contour point cannot be undistorted: outside a fisheye's image
+        circle, imaging a ray 90° or more off the optical axis (no pinhole coordinates), or
+        where a Brown–Conrady model folds over.
+    ValueError
+        When the contour holds fewer than 3 points.
+
+    Notes
+    -----
+    Paper §3.2.1 (d = r·f/R, x₀ = d·K⁻¹(u, v, 1)ᵀ) on the undistorted outline; the lens sweep
+    (paper §4.1.2, §5). On an exact silhouette the result equals the circle method on the
+    pinhole camera's silhouette of the same sphere, to the resolution of
+    ``cv2.minEnclosingCircle`` (float32; tested).
+    """
+    _check_intrinsics(intrinsics)
+    radius_m = _check_radius(radius_m)
+    distortion = _check_distortion(distortion)
+    if distortion is None or distortion.is_identity:
+        return locate_sphere_circle(detection, intrinsics, radius_m)
+    contour = detection.outline_px
+    if len(contour) < 3:
+        raise ValueError(f"detection.outline_px must hold at least 3 points to undistort, got {len(contour)}")
+    try:
+        points = undistort_pixels(contour, intrinsics, distortion)
+    except UndistortionError as error:
+        raise UndistortionError(f"cannot undistort the sphere's contour through {distortion!r}: {error}") from None
+    # minEnclosingCircle works in float32: hand it coordinates relative to the mean
+    mean = points.mean(axis=0)
+    centre, radius = cv2.minEnclosingCircle((points - mean).astype(np.float32))
+    undistorted = SphereDetection(
+        center_px=mean + np.asarray(centre, dtype=float),
+        radius_px=radius,
+        contour_px=points,
+        area_px=abs(cv2.contourArea((points - mean).astype(np.float32))),
+    )
+    return locate_sphere_circle(undistorted, intrinsics, radius_m)
+
+
 def circle_method_estimate(distance_m, radius_m: float, off_axis_rad) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form result of the circle method on an ideal (pinhole, noise-free) silhouette.
 
@@ -650,7 +852,7 @@ def sphere_silhouette_px(
     center_cam_m,
     radius_m: float,
     intrinsics: Intrinsics,
-    distortion: BrownConrady | None = None,
+    distortion: BrownConrady | KannalaBrandt | None = None,
     n_points: int = 720,
 ) -> np.ndarray:
     """The exact image outline of a sphere: the projection of its circle of tangency.
@@ -666,7 +868,7 @@ def sphere_silhouette_px(
         Sphere centre in the camera optical frame, metres (in front of the camera).
     radius_m : float
     intrinsics : Intrinsics
-    distortion : BrownConrady, optional
+    distortion : BrownConrady or KannalaBrandt, optional
     n_points : int
         Number of samples (≥ 5).
 
@@ -691,9 +893,7 @@ def sphere_silhouette_px(
     ring_center = center * (1.0 - radius_m**2 / distance**2)
     phi = np.linspace(0.0, 2 * math.pi, n_points, endpoint=False)
     points = ring_center + ring_radius * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
-    from .camera import project
-
-    return project(points, intrinsics, distortion)
+    return project(points, intrinsics, _check_distortion(distortion))
 
 
 def fit_conic(points) -> np.ndarray | None:
@@ -783,7 +983,7 @@ def locate_sphere_ellipse(
     detection: SphereDetection,
     intrinsics: Intrinsics,
     radius_m: float,
-    distortion: BrownConrady | None = None,
+    distortion: BrownConrady | KannalaBrandt | None = None,
 ) -> np.ndarray | None:
     """Exact sphere centre from the cone through its image outline (paper §3.2.1, ref. [27]).
 
@@ -803,8 +1003,10 @@ def locate_sphere_ellipse(
     intrinsics : Intrinsics
     radius_m : float
         True sphere radius r, metres.
-    distortion : BrownConrady, optional
+    distortion : BrownConrady or KannalaBrandt, optional
         Lens model of the image the contour comes from (None: pinhole, or already rectified).
+        Through a fisheye the contour must image rays less than 90° off the optical axis (the
+        cone is fitted in normalised pinhole coordinates).
 
     Returns
     -------
@@ -938,6 +1140,8 @@ class ArucoTracker:
     Parameters
     ----------
     intrinsics : Intrinsics
+        The camera of the frames the detector sees: the raw camera, or
+        ``rectifier.out_intrinsics`` when a rectifier is given.
     marker_length_m : float
         Side L of the black square, metres.
     dictionary : str or int
@@ -951,11 +1155,19 @@ class ArucoTracker:
         known truth (``realworld.PlanarTargetCamera``) "subpix" has the smallest corner error
         from 80 px up; on rendered frames all modes are within 1.5 px and "subpix" keeps range
         within 1 % (``tests/test_detection.py``).
-    distortion : BrownConrady, optional
-        Passed to ``solvePnP``, which then undistorts the corners. None is the paper's setting:
-        the pinhole model is assumed even when the lens distorts.
+    distortion : BrownConrady or KannalaBrandt, optional
+        The lens of the raw frames; markers are detected on the raw frame either way. A
+        Brown–Conrady lens is passed to ``solvePnP``, which undistorts the corners. For a fisheye
+        the corners are undistorted to normalised coordinates with
+        ``cv2.fisheye.undistortPoints`` and the same PnP runs with K = I and no distortion. A
+        marker with a corner that images a ray 90° or more off the axis (no pinhole
+        coordinates), lies outside the image circle, or lies at a normalised image radius
+        θ_d ≥ π/2 (``cv2.fisheye.undistortPoints`` clamps θ_d there; a lens with θ_d(θ) > θ
+        reaches it before 90°) gets no pose. None is the paper's setting: the pinhole model is
+        assumed even when the lens distorts.
     rectifier : Rectifier, optional
-        Rectify each frame before detection (then ``distortion`` must be None).
+        Rectify each frame before detection (then ``distortion`` must be None, and
+        ``intrinsics`` must be ``rectifier.out_intrinsics``: the rectified image's camera).
     threshold_windows_px : (int, int, int)
         (min, max, step) of the adaptive-threshold window sides, pixels ≥ 3, used at every
         pyramid level. The default thresholds with 3- and 13-px windows. Measured
@@ -992,7 +1204,7 @@ class ArucoTracker:
         marker_length_m: float = 0.30,
         dictionary: str | int = "DICT_4X4_50",
         refinement: str = "subpix",
-        distortion: BrownConrady | None = None,
+        distortion: BrownConrady | KannalaBrandt | None = None,
         rectifier: Rectifier | None = None,
         threshold_windows_px: tuple[int, int, int] = (3, 13, 10),
         pyramid_factor: int = 4,
@@ -1034,6 +1246,11 @@ class ArucoTracker:
         self.rectifier = _check_rectifier(rectifier)
         if self.rectifier is not None and self.distortion is not None:
             raise ValueError("give either rectifier or distortion, not both: a rectified image is already pinhole")
+        if self.rectifier is not None and self.rectifier.out_intrinsics != self.intrinsics:
+            raise ValueError(
+                "the tracker sees the rectified image: build it on rectifier.out_intrinsics "
+                f"({self.rectifier.out_intrinsics!r}), got intrinsics {self.intrinsics!r}"
+            )
         parameters = cv2.aruco.DetectorParameters()
         parameters.cornerRefinementMethod = REFINEMENT_MODES[refinement]
         (
@@ -1057,6 +1274,16 @@ class ArucoTracker:
         )
         self._K = intrinsics.K
         self._dist = self.distortion.coefficients if self.distortion is not None else None
+        # PnP runs in pixels (K and a Brown–Conrady lens) or, through a fisheye, in normalised
+        # coordinates of the undistorted corners (K = I, no distortion)
+        self._fisheye = isinstance(self.distortion, KannalaBrandt)
+        self._pnp_K = np.eye(3) if self._fisheye else self._K
+        self._pnp_dist = None if self._fisheye else self._dist
+        if self._fisheye:
+            lens = self.distortion
+            # corners must image rays < 90° off the axis (inside the image circle), and lie where
+            # cv2.fisheye.undistortPoints is right: it clamps θ_d to π/2
+            self._max_theta_d = min(0.5 * math.pi, float(lens.theta_d(min(0.5 * math.pi, lens.max_field_rad))))
 
     def __repr__(self) -> str:
         return (
@@ -1169,7 +1396,9 @@ class ArucoTracker:
         -------
         MarkerPose or None
             None when a corner is not finite, the quad is degenerate (coincident or collinear
-            corners) or ``solvePnP`` fails.
+            corners), a fisheye corner cannot be undistorted (see ``distortion``) or
+            ``solvePnP`` fails. ``corners_px``, ``center_px`` and the reprojection error are in
+            the pixels of ``corners_px`` (through the lens, when one is given).
 
         Raises
         ------
@@ -1187,10 +1416,18 @@ class ArucoTracker:
             np.linalg.norm(image_points - np.roll(image_points, 1, axis=0), axis=1)
         ) < 1e-6:
             return None
+        pnp_points = self._undistort_fisheye(image_points) if self._fisheye else image_points
+        if pnp_points is None:
+            return None
         best = None
-        for R_cam_marker, tvec in self._candidate_poses(image_points):
+        for R_cam_marker, tvec in self._candidate_poses(pnp_points):
             rvec = cv2.Rodrigues(R_cam_marker)[0]
-            reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
+            if self._fisheye:
+                reprojected, _ = cv2.fisheye.projectPoints(
+                    self.object_points_m.reshape(-1, 1, 3), rvec, tvec, self._K, self._dist
+                )
+            else:
+                reprojected, _ = cv2.projectPoints(self.object_points_m, rvec, tvec, self._K, self._dist)
             residual = float(np.sqrt(np.mean(np.sum((reprojected.reshape(4, 2) - image_points) ** 2, axis=1))))
             if best is None or residual < best[0]:
                 best = (residual, R_cam_marker, rvec, tvec)
@@ -1209,10 +1446,18 @@ class ArucoTracker:
             reprojection_error_px=residual,
         )
 
+    def _undistort_fisheye(self, image_points: np.ndarray) -> np.ndarray | None:
+        """Fisheye corners (4, 2), pixels → normalised coordinates (4, 2), or None where they have none."""
+        theta_d = np.hypot(*self.intrinsics.to_normalised(image_points).T)
+        if np.any(theta_d >= self._max_theta_d):
+            return None
+        normalised = cv2.fisheye.undistortPoints(image_points.reshape(-1, 1, 2), self._K, self._dist).reshape(4, 2)
+        return normalised if np.all(np.isfinite(normalised)) else None
+
     def _pnp(self, image_points, flags):
         """``solvePnP`` of the marker's object corners: (R, t), or None when it fails or returns NaN."""
         try:
-            ok, rvec, tvec = cv2.solvePnP(self.object_points_m, image_points, self._K, self._dist, flags=flags)
+            ok, rvec, tvec = cv2.solvePnP(self.object_points_m, image_points, self._pnp_K, self._pnp_dist, flags=flags)
         except cv2.error:  # a degenerate quad that passed the checks of pose_from_corners
             return None
         if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
