@@ -37,7 +37,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from .simulation import TrackingConfig, TrackingResult, make_renderer, simulate
+from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
 __all__ = ["ResultsStore", "RunInterrupted", "run", "source_hash", "dask_executor", "staged_folder"]
 
@@ -179,6 +179,8 @@ class RunInterrupted(KeyboardInterrupt):
 # workers
 # ----------------------------------------------------------------------------------------------
 _RENDERERS: dict = {}
+#: Renderers a worker keeps open at once (study grids run the runs of one renderer together).
+MAX_RENDERERS = 4
 _PREPARED = False
 
 
@@ -196,10 +198,16 @@ def _prepare_process() -> None:
 
 
 def _renderer_for(config: TrackingConfig):
-    key = (config.target, config.lens, config.width, config.height, config.hfov_rad)
-    if key not in _RENDERERS:
-        _RENDERERS[key] = make_renderer(config)
-    return _RENDERERS[key]
+    """A renderer for ``config``, reused while runs share its :func:`renderer_key`; the least
+    recently used one is closed beyond :data:`MAX_RENDERERS` (a fisheye holds six GL contexts)."""
+    key = renderer_key(config)
+    renderer = _RENDERERS.pop(key, None)
+    if renderer is None:
+        while len(_RENDERERS) >= MAX_RENDERERS:
+            _RENDERERS.pop(next(iter(_RENDERERS))).close()
+        renderer = make_renderer(config)
+    _RENDERERS[key] = renderer  # most recently used last
+    return renderer
 
 
 def _run_one(config: TrackingConfig) -> TrackingResult:

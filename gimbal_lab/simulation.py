@@ -36,11 +36,11 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from .camera import BrownConrady, Intrinsics, project
+from .camera import BrownConrady, Intrinsics, KannalaBrandt, project
 from .trajectories import Trajectory, target_pose
 
 __all__ = ["TrackingConfig", "TrackingResult", "simulate", "render_frame", "FRAME_COLUMNS", "world_T_base",
-           "make_renderer"]
+           "make_renderer", "renderer_key", "CONE_RANGE_M", "CONE_FIELD_FRACTION"]
 
 _TARGETS = ("sphere", "aruco")
 _MODES = ("passive", "active")
@@ -51,6 +51,13 @@ _OUTER_LOOPS = ("paper", "predictive")
 _MOTIONS = ("static", "hover", "vibration", "flight")
 _PASSIVE_MOUNTS = ("stabilised", "fixed")
 _BLURS = ("subframes", "fast")
+_TRAJECTORIES = ("circular", "diagonal", "cone")
+_LENS_STRATEGIES = ("ignore", "undistort", "rectify")
+
+#: The cone trajectory (docs/design.md, "Lens sweep"): the target circles the home optical axis at
+#: this range from the home camera, off the axis by this fraction of the half horizontal field.
+CONE_RANGE_M = 3.0
+CONE_FIELD_FRACTION = 0.7
 
 #: Upper bounds that keep a config's sizes sane (a run, not a typo, decides the cost).
 _MAX_IMAGE_PX = 8192
@@ -91,9 +98,15 @@ class TrackingConfig:
     Parameters
     ----------
     target : {"sphere", "aruco"}
-    distortion : {"none", "default"} or BrownConrady
-        The lens; "default" is :meth:`BrownConrady.default`.
-    trajectory : {"circular", "diagonal"}
+    distortion : {"none", "default"}, BrownConrady or KannalaBrandt
+        The lens; "default" is :meth:`BrownConrady.default`. A :class:`KannalaBrandt` fisheye is
+        rendered through :class:`gimbal_lab.widefield.WideFieldRenderer`, its focal length set by
+        ``hfov_rad`` (f = (W/2)/(hfov/2), the equidistant rule of
+        :meth:`KannalaBrandt.equidistant_for_fov`).
+    trajectory : {"circular", "diagonal", "cone"}
+        The paper's two motions, or the lens sweep's cone: a circle about the home optical axis
+        at :data:`CONE_RANGE_M` from the home camera, :data:`CONE_FIELD_FRACTION` of the half
+        horizontal field off the axis (so it reaches as far into the field for every lens).
     mode : {"passive", "active"}
     revolutions : float
         Number of periods simulated (> 0). The study: 2, the first being acquisition.
@@ -107,7 +120,8 @@ class TrackingConfig:
     width, height : int
         Image size in pixels (640 × 480).
     hfov_rad : float
-        Horizontal field of view (60°).
+        Horizontal field of view (60°); below 179° for a pinhole or Brown–Conrady lens, up to twice
+        the fisheye's ``max_field_rad`` for a Kannala–Brandt lens.
     inner_rate_hz : float
         Rate of the inner loop and of the axis integration (1 kHz), >= fps.
     latency_frames : int
@@ -126,9 +140,20 @@ class TrackingConfig:
         (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`); "predictive" filters the line of
         sight with priors from a stated target class and feeds its rate forward
         (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension).
-    calibrated : bool
-        True: the estimators know the lens model (undistort contours / pass coefficients to
-        solvePnP). False (paper): they assume a pinhole camera whatever the lens.
+    lens_strategy : {"ignore", "undistort", "rectify"}
+        How the estimator treats the lens (docs/design.md, "Lens sweep"). "ignore" (the paper):
+        it assumes a pinhole camera whatever the lens. "undistort": it knows the lens and
+        undistorts the detected points (the sphere's contour before its circle or cone fit, the
+        marker's corners before solvePnP). "rectify": each frame is first resampled to a pinhole
+        image (:class:`gimbal_lab.detection.Rectifier`: the same K for a Brown–Conrady lens, a 90°
+        pinhole for a fisheye) and detected there. Both known-lens strategies also give the outer
+        loop the lens. Needs a lens unless "ignore".
+    sphere_radius_m, marker_length_m : float
+        Target sizes (0.10 m sphere; 0.30 m marker on a plate 4/3 as wide); the lens sweep scales
+        them with the focal length.
+    altitude_m : float
+        Height of the drone body above the ground, m (2.0; the lens sweep flies higher so its
+        widest cones stay above the ground). Not with ``motion="flight"``, whose path is fixed.
     exposure_s, n_subframes : float, int
         Motion blur: frames integrate ``n_subframes`` renders over ``exposure_s`` (0 s, 1: sharp).
     blur : {"subframes", "fast"}
@@ -173,7 +198,10 @@ class TrackingConfig:
     sphere_method: str = "circle"
     aruco_refinement: str = "subpix"
     outer_loop: str = "paper"
-    calibrated: bool = False
+    lens_strategy: str = "ignore"
+    sphere_radius_m: float = 0.10
+    marker_length_m: float = 0.30
+    altitude_m: float = 2.0
     exposure_s: float = 0.0
     n_subframes: int = 1
     blur: str = "subframes"
@@ -187,7 +215,8 @@ class TrackingConfig:
 
     def __post_init__(self):
         _choice("target", self.target, _TARGETS)
-        _choice("trajectory", self.trajectory, ("circular", "diagonal"))
+        _choice("trajectory", self.trajectory, _TRAJECTORIES)
+        _choice("lens_strategy", self.lens_strategy, _LENS_STRATEGIES)
         _choice("mode", self.mode, _MODES)
         _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
         _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
@@ -195,12 +224,28 @@ class TrackingConfig:
         _choice("blur", self.blur, _BLURS)
         _choice("motion", self.motion, _MOTIONS)
         _choice("passive_mount", self.passive_mount, _PASSIVE_MOUNTS)
-        if not isinstance(self.distortion, BrownConrady):
+        if not isinstance(self.distortion, (BrownConrady, KannalaBrandt)):
+            if not isinstance(self.distortion, str):
+                raise TypeError(f"distortion must be one of {_DISTORTIONS}, a BrownConrady or a KannalaBrandt, "
+                                f"got {type(self.distortion).__name__}")
             _choice("distortion", self.distortion, _DISTORTIONS)
         set_ = lambda name, value: object.__setattr__(self, name, value)
         for name in ("revolutions", "period_s", "fps"):
             set_(name, _number(name, getattr(self, name), low=0.0, low_open=True))
-        set_("hfov_rad", _number("hfov_rad", self.hfov_rad, low=0.0, high=math.radians(179.0), low_open=True))
+        fisheye = isinstance(self.distortion, KannalaBrandt)
+        widest = min(2.0 * self.distortion.max_field_rad, 2.0 * math.pi) if fisheye else math.radians(179.0)
+        set_("hfov_rad", _number("hfov_rad", self.hfov_rad, low=0.0, high=widest, low_open=True))
+        for name in ("sphere_radius_m", "marker_length_m"):
+            set_(name, _number(name, getattr(self, name), low=0.0, high=10.0, low_open=True))
+        set_("altitude_m", _number("altitude_m", self.altitude_m, low=0.0, high=1000.0, low_open=True))
+        if self.motion == "flight" and self.altitude_m != 2.0:
+            raise ValueError(f"altitude_m={self.altitude_m:g} needs a static or hovering body; the flight's path is "
+                             "fixed at 2 m")
+        if self.lens_strategy != "ignore" and self.lens is None:
+            raise ValueError(f"lens_strategy={self.lens_strategy!r} needs a lens; this config's camera is an ideal "
+                             "pinhole (use 'ignore')")
+        if fisheye and self.exposure_s > 0 and self.blur == "fast":
+            raise ValueError("a KannalaBrandt lens integrates exposures from sub-frames: use blur='subframes'")
         set_("inner_rate_hz", _number("inner_rate_hz", self.inner_rate_hz, low=self.fps, high=_MAX_INNER_RATE_HZ))
         set_("start_phase_s", _number("start_phase_s", self.start_phase_s, low=0.0))
         if self.start_phase_s >= self.period_s:
@@ -230,32 +275,54 @@ class TrackingConfig:
                              "always on the gimbal)")
         if self.motion != "static" and self.mode == "active" and self.outer_loop == "predictive":
             raise ValueError("outer_loop='predictive' assumes a still body; use motion='static' or outer_loop='paper'")
-        if not isinstance(self.calibrated, (bool, np.bool_)):
-            raise TypeError(f"calibrated must be a bool, got {self.calibrated!r}")
-        set_("calibrated", bool(self.calibrated))
         set_("seed", _number("seed", self.seed, low=0, high=2**63 - 1, integer=True))
 
     # Derived quantities -------------------------------------------------------------------
     @property
     def intrinsics(self) -> Intrinsics:
+        if isinstance(self.distortion, KannalaBrandt):
+            f_px = KannalaBrandt.equidistant_for_fov(self.width, self.hfov_rad)[1]
+            return Intrinsics(f_px, f_px, (self.width - 1) / 2.0, (self.height - 1) / 2.0, self.width, self.height)
         return Intrinsics.from_fov(self.width, self.height, self.hfov_rad)
 
     @property
-    def lens(self) -> BrownConrady | None:
-        """The camera's distortion model, or None for an ideal pinhole lens."""
+    def lens(self) -> BrownConrady | KannalaBrandt | None:
+        """The camera's lens model, or None for an ideal pinhole lens."""
+        if isinstance(self.distortion, KannalaBrandt):
+            return self.distortion
         if isinstance(self.distortion, BrownConrady):
             return None if self.distortion.is_identity else self.distortion
         return BrownConrady.default() if self.distortion == "default" else None
 
     @property
+    def calibrated(self) -> bool:
+        """Whether the estimator and the outer loop know the lens (any strategy but "ignore")."""
+        return self.lens_strategy != "ignore"
+
+    @property
     def distortion_label(self) -> str:
+        if isinstance(self.distortion, KannalaBrandt):
+            return "fisheye"
         if isinstance(self.distortion, BrownConrady):
             return "custom"
         return "distorted" if self.distortion == "default" else "undistorted"
 
     @property
+    def home_camera_m(self) -> np.ndarray:
+        """The camera's optical centre at the gimbal's home pose with the body at rest, world frame, m."""
+        from .kinematics import GimbalKinematics
+
+        return np.array(BODY_POSITION_M[:2] + (self.altitude_m,)) + GimbalKinematics.default().T_body_cam(
+            np.zeros(3))[:3, 3]
+
+    @property
     def path(self) -> Trajectory:
-        return Trajectory(self.trajectory, period_s=self.period_s)
+        if self.trajectory != "cone":
+            return Trajectory(self.trajectory, period_s=self.period_s)
+        half_angle = CONE_FIELD_FRACTION * 0.5 * self.hfov_rad
+        centre = self.home_camera_m + np.array([CONE_RANGE_M * math.cos(half_angle), 0.0, 0.0])
+        return Trajectory("circular", period_s=self.period_s, centre_m=centre,
+                          radius_m=CONE_RANGE_M * math.sin(half_angle))
 
     @property
     def mount(self) -> str:
@@ -268,12 +335,13 @@ class TrackingConfig:
         from .platform import BodyMotion
 
         seed = int(np.random.SeedSequence([self.seed, 1]).generate_state(1)[0])
+        position_m = BODY_POSITION_M[:2] + (self.altitude_m,)
         if self.motion == "static":
-            return BodyMotion.static(BODY_POSITION_M)
+            return BodyMotion.static(position_m)
         if self.motion == "flight":
             body = BodyMotion.flying(seed)
         else:
-            body = BodyMotion.hover(seed, vibration=self.motion == "vibration", position_m=BODY_POSITION_M)
+            body = BodyMotion.hover(seed, vibration=self.motion == "vibration", position_m=position_m)
         return replace(body, time_offset_s=self.motion_phase_s)
 
     @property
@@ -292,6 +360,9 @@ class TrackingConfig:
         out = asdict(self)
         if isinstance(self.distortion, BrownConrady):
             out["distortion"] = {k: float(v) for k, v in asdict(self.distortion).items()}
+        elif isinstance(self.distortion, KannalaBrandt):
+            out["distortion"] = {"model": "kannala_brandt",
+                                 **{k: float(v) for k, v in asdict(self.distortion).items()}}
         return out
 
     @classmethod
@@ -302,7 +373,11 @@ class TrackingConfig:
         if unknown:
             raise ValueError(f"unknown TrackingConfig field(s): {', '.join(unknown)}")
         if isinstance(data.get("distortion"), dict):
-            data["distortion"] = BrownConrady(**data["distortion"])
+            lens = dict(data["distortion"])
+            model = lens.pop("model", "brown_conrady")
+            if model not in ("brown_conrady", "kannala_brandt"):
+                raise ValueError(f"unknown lens model {model!r} (brown_conrady or kannala_brandt)")
+            data["distortion"] = (KannalaBrandt if model == "kannala_brandt" else BrownConrady)(**lens)
         return cls(**data)
 
     @property
@@ -313,8 +388,10 @@ class TrackingConfig:
 
     @property
     def label(self) -> str:
+        if self.motion != "static":
+            return f"{self.target}/{self.motion}/{self.mount}"
         base = f"{self.target}/{self.distortion_label}/{self.trajectory}/{self.mode}"
-        return base if self.motion == "static" else f"{self.target}/{self.motion}/{self.mount}"
+        return base if self.lens_strategy == "ignore" else f"{base}/{self.lens_strategy}"
 
 
 @dataclass
@@ -375,37 +452,65 @@ class _Estimator:
     For the sphere both localisers run on the same detection: the config's method gives the
     estimate, the other one (circle ↔ ellipse) is recorded alongside as ``alt`` so the two can be
     compared on identical frames (the closed loop only uses the pixel centre, which they share).
+
+    The lens strategy (:class:`TrackingConfig` ``lens_strategy``) decides what the localisers
+    know: nothing ("ignore": pinhole with the camera's K), the lens ("undistort": the circle
+    method on the undistorted contour, the cone fit on it, solvePnP on undistorted corners), or
+    the rectified camera ("rectify": detection and localisation on the pinhole image that
+    :class:`gimbal_lab.detection.Rectifier` resamples; the pixel centre is mapped back to the
+    camera's own image, where the outer loop measures it).
     """
 
     def __init__(self, config: TrackingConfig):
         from . import detection
 
         self.config = config
-        self.intrinsics = config.intrinsics
-        self.lens = config.lens if config.calibrated else None
-        self.radius_m = 0.10
+        lens = config.lens
+        self.rectifier = detection.Rectifier(config.intrinsics, lens) if config.lens_strategy == "rectify" else None
+        self.intrinsics = self.rectifier.out_intrinsics if self.rectifier is not None else config.intrinsics
+        self.lens = lens if config.lens_strategy == "undistort" else None
+        self.radius_m = config.sphere_radius_m
+        K, r, known = self.intrinsics, self.radius_m, self.lens
         if config.target == "sphere":
             self.detector = detection.SphereDetector()
-            circle = lambda det: detection.locate_sphere_circle(det, self.intrinsics, self.radius_m)
-            ellipse = lambda det: detection.locate_sphere_ellipse(det, self.intrinsics, self.radius_m, distortion=self.lens)
+            if known is None:
+                circle = lambda det: detection.locate_sphere_circle(det, K, r)  # noqa: E731
+            else:
+                circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
+            ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             self._methods = (circle, ellipse) if config.sphere_method == "circle" else (ellipse, circle)
         else:
             self.detector = detection.ArucoTracker(
-                self.intrinsics, marker_length_m=0.30, refinement=config.aruco_refinement, distortion=self.lens
+                K, marker_length_m=config.marker_length_m, refinement=config.aruco_refinement, distortion=known
             )
 
+    def _centre(self, uv) -> np.ndarray:
+        uv = np.asarray(uv, float)
+        return uv if self.rectifier is None else self.rectifier.to_source_px(uv).reshape(2)
+
     def __call__(self, image):
+        from .camera import UndistortionError
+
+        if self.rectifier is not None:
+            image = self.rectifier.rectify(image)
         if self.config.target == "sphere":
             det = self.detector.detect(image)
             if det is None:
                 return None, None, None
-            p, alt = (m(det) for m in self._methods)
-            as_array = lambda x: None if x is None else np.asarray(x, float)
-            return np.asarray(det.center_px, float), as_array(p), as_array(alt)
+
+            def locate(method):
+                try:
+                    p = method(det)
+                except UndistortionError:  # a contour point beyond the lens's field: no estimate
+                    return None
+                return None if p is None else np.asarray(p, float)
+
+            p, alt = (locate(m) for m in self._methods)
+            return self._centre(det.center_px), p, alt
         pose = self.detector.detect(image).get(0)
         if pose is None:
             return None, None, None
-        return np.asarray(pose.center_px, float), np.asarray(pose.t_cam_marker_m, float), None
+        return self._centre(pose.center_px), np.asarray(pose.t_cam_marker_m, float), None
 
 
 #: Where the UAV body sits in the world during the study (static, level, facing +x).
@@ -419,11 +524,31 @@ def world_T_base(kinematics) -> np.ndarray:
     return T_world_body @ kinematics.T_body_base
 
 
+#: Width of the marker's white plate over the marker's own (0.40 m for the study's 0.30 m marker).
+PLATE_TO_MARKER = 0.40 / 0.30
+
+
+def renderer_key(config: TrackingConfig) -> tuple:
+    """What a renderer depends on: two configs with equal keys can share one (:func:`make_renderer`)."""
+    return (config.target, config.lens, config.width, config.height, config.hfov_rad, config.sphere_radius_m,
+            config.marker_length_m)
+
+
 def make_renderer(config: TrackingConfig):
-    """The scene renderer a config needs (one per target and lens; reusable across runs)."""
+    """The scene renderer a config needs (one per :func:`renderer_key`; reusable across runs).
+
+    A Kannala–Brandt lens gets a :class:`gimbal_lab.widefield.WideFieldRenderer` (a cube map
+    remapped to the lens); any other lens a :class:`gimbal_lab.scene.SceneRenderer`.
+    """
+    sizes = dict(sphere_radius_m=config.sphere_radius_m, marker_length_m=config.marker_length_m,
+                 plate_size_m=PLATE_TO_MARKER * config.marker_length_m)
+    if isinstance(config.lens, KannalaBrandt):
+        from .widefield import WideFieldRenderer
+
+        return WideFieldRenderer(config.intrinsics, config.lens, target=config.target, **sizes)
     from .scene import SceneRenderer
 
-    return SceneRenderer(config.intrinsics, distortion=config.lens, target=config.target)
+    return SceneRenderer(config.intrinsics, distortion=config.lens, target=config.target, **sizes)
 
 
 def _outer_loop(config: TrackingConfig, kin, pixel_lens):
@@ -611,7 +736,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     body = config.body
     gyro_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 2]))
     mount = GimbalMount(kin, body, config.mount, dt_s, n_steps, config.gyro_noise_rad_s_rthz, gyro_rng)
-    pixel_lens = lens if config.calibrated else None
+    pixel_lens = lens if config.calibrated else None  # the lens the outer loop knows
     outer = _outer_loop(config, kin, pixel_lens)
     image_loop = outer if isinstance(outer, ImageLoop) else None
     predictive = None if (outer is None or image_loop is not None) else outer

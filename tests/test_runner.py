@@ -691,3 +691,31 @@ def test_run_interrupted_says_what_was_kept(tmp_path):
 def test_source_hash_is_stable_hex():
     h = source_hash()
     assert re.fullmatch(r"[0-9a-f]{16}", h) and h == source_hash()
+
+
+def test_a_worker_keeps_at_most_max_renderers_and_closes_the_least_recently_used(monkeypatch):
+    """Renderers are shared by runs with one renderer_key; beyond MAX_RENDERERS the least recently
+    used is closed (a fisheye renderer holds one GL context per cube face)."""
+    made, closed = [], []
+
+    class Fake:
+        def __init__(self, config):
+            self.config = config
+            made.append(self)
+
+        def close(self):
+            closed.append(self)
+
+    monkeypatch.setattr(runner, "make_renderer", Fake)
+    monkeypatch.setattr(runner, "_RENDERERS", {})
+    configs = [TrackingConfig(sphere_radius_m=0.1 * (1 + i)) for i in range(runner.MAX_RENDERERS + 2)]
+    first = runner._renderer_for(configs[0])
+    assert runner._renderer_for(TrackingConfig(seed=9, mode="active")) is first  # same key: shared
+    for c in configs[1:runner.MAX_RENDERERS]:
+        runner._renderer_for(c)
+    assert runner._renderer_for(configs[0]) is first and not closed  # used again: now the most recent
+    runner._renderer_for(configs[runner.MAX_RENDERERS])
+    assert [r.config for r in closed] == [configs[1]]  # the least recently used went
+    runner._renderer_for(configs[runner.MAX_RENDERERS + 1])
+    assert [r.config for r in closed] == [configs[1], configs[2]]
+    assert len(runner._RENDERERS) == runner.MAX_RENDERERS and len(made) == runner.MAX_RENDERERS + 2

@@ -10,11 +10,14 @@ from ._common import interactive
 from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
-           "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions"]
+           "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions", "plot_lens_sweep",
+           "plot_lens_costs", "plot_lens_views"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
 _MOUNT_COLOURS = {"fixed": "tab:gray", "stabilised": "tab:blue", "active": "tab:orange"}
+_STRATEGY_COLOURS = {"ignore": "tab:gray", "undistort": "tab:green", "rectify": "tab:purple"}
+_TARGET_TITLES = {"sphere": "sphere", "aruco": "ArUco marker"}
 
 
 def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
@@ -445,4 +448,132 @@ def plot_body_motions(bodies: dict, duration_s: float = 4.0, zoom_s: float = 0.0
     axes[1, 0].set_ylabel(f"attitude [deg]\n{1000 * zoom_s:.0f} ms from t = 1 s")
     axes[2, 0].set_ylabel("position − start [m]")
     axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_lens_sweep(summary, value: str = "mean_abs_error_m", fig=None):
+    """The lens sweep: one quantity against the lens, a line per strategy, per target and mode.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        :func:`gimbal_lab.studies.lens_sweep.summary_table` output (rows in the sweep's lens order).
+    value : {"mean_abs_error_m", "detection_rate_pct", "common_abs_error_m", "estimate_ms"}
+        The error is drawn in mm on a log axis with its 95 % interval; the others linearly.
+
+    Returns
+    -------
+    Figure
+        Rows: targets; columns: passive, active. The x axis lists the lenses from the pinhole to the
+        185° fisheye (a dotted line separates the Brown–Conrady lenses from the fisheyes). The
+        pinhole runs "ignore" only, so the other strategies start at the first distorted lens.
+    """
+    labels = {"mean_abs_error_m": "|d_est − d_true| [mm]", "common_abs_error_m": "error, common frames [mm]",
+              "detection_rate_pct": "detection rate [%]", "estimate_ms": "detection + localisation [ms/frame]"}
+    if value not in labels:
+        raise ValueError(f"value must be one of {tuple(labels)}, got {value!r}")
+    targets = list(dict.fromkeys(summary["target"]))
+    if not targets:
+        raise ValueError("summary holds no rows")
+    lenses = list(dict.fromkeys(summary["lens"]))
+    modes = [m for m in _MODE_COLOURS if (summary["mode"] == m).any()]
+    if fig is None:
+        fig = plt.figure(figsize=(5.0 * len(modes) + 1.8, 3.4 * len(targets)), layout="constrained")
+    axes = fig.subplots(len(targets), len(modes), squeeze=False, sharex=True)
+    x = {lens: i for i, lens in enumerate(lenses)}
+    k = 1000.0 if value.endswith("_m") else 1.0
+    for r, target in enumerate(targets):
+        for c, mode in enumerate(modes):
+            ax = axes[r, c]
+            for j, strategy in enumerate(_STRATEGY_COLOURS):
+                df = summary[(summary["target"] == target) & (summary["mode"] == mode) & (summary["strategy"] == strategy)]
+                if df.empty:
+                    continue
+                xs = np.array([x[lens] for lens in df["lens"]]) + (j - 1) * 0.08
+                ys = k * df[value].to_numpy(float)
+                yerr = None
+                if value == "mean_abs_error_m":
+                    yerr = np.vstack((ys - k * df["ci_low_m"].to_numpy(float), k * df["ci_high_m"].to_numpy(float) - ys))
+                    yerr = np.where(np.isfinite(yerr), np.clip(yerr, 0.0, None), 0.0)
+                    yerr[0] = np.minimum(yerr[0], 0.95 * np.nan_to_num(ys, nan=1.0))  # keep the log axis positive
+                ax.errorbar(xs, ys, yerr=yerr, fmt="o-", ms=4, capsize=2, color=_STRATEGY_COLOURS[strategy],
+                            label=strategy)
+            families = summary.drop_duplicates("lens").set_index("lens")["family"]
+            fisheyes = [x[lens] for lens in lenses if families.get(lens) == "fisheye"]
+            if fisheyes and min(fisheyes) > 0:
+                ax.axvline(min(fisheyes) - 0.5, color="0.5", ls=":", lw=1)
+            if value == "mean_abs_error_m":
+                ax.set_yscale("log")
+            if value == "detection_rate_pct":
+                ax.set_ylim(-3, 103)
+            ax.grid(alpha=0.3, which="both")
+            ax.set_title(f"{_TARGET_TITLES.get(target, target)}, {mode}")
+            if c == 0:
+                ax.set_ylabel(labels[value])
+            if r == len(targets) - 1:
+                ax.set_xticks(range(len(lenses)), lenses, rotation=30, ha="right", fontsize=8)
+    axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, title="lens strategy")
+    return fig
+
+
+def plot_lens_costs(summary, fig=None):
+    """Cost per frame of each lens strategy (detection + localisation, rectification included) and
+    of rendering, per lens, with 95 % intervals over replicates (both modes and targets pooled by
+    their cell means)."""
+    if summary.empty:
+        raise ValueError("summary holds no rows")
+    lenses = list(dict.fromkeys(summary["lens"]))
+    if fig is None:
+        fig = plt.figure(figsize=(10, 3.8), layout="constrained")
+    ax_est, ax_render = fig.subplots(1, 2, gridspec_kw={"width_ratios": (2, 1)})
+    width = 0.8 / len(_STRATEGY_COLOURS)
+    for j, (strategy, colour) in enumerate(_STRATEGY_COLOURS.items()):
+        per_lens = summary[summary["strategy"] == strategy].groupby("lens", sort=False)["estimate_ms"]
+        means = np.array([per_lens.mean().get(lens, np.nan) for lens in lenses])
+        spread = np.array([per_lens.std().get(lens, np.nan) for lens in lenses])
+        ax_est.bar(np.arange(len(lenses)) + (j - 1) * width, np.nan_to_num(means), width,
+                   yerr=np.nan_to_num(spread), capsize=2, color=colour, edgecolor="k", linewidth=0.4, label=strategy)
+    ax_est.set_xticks(range(len(lenses)), lenses, rotation=30, ha="right", fontsize=8)
+    ax_est.set_ylabel("detection + localisation [ms/frame]")
+    ax_est.set_title("cost of each lens strategy (bars: mean over targets and modes, ± s.d.)", fontsize=9)
+    ax_est.legend(frameon=False, fontsize=8)
+    ax_est.grid(axis="y", alpha=0.3)
+    render = summary.groupby(["lens", "mode"], sort=False)["render_ms"].mean().unstack()
+    for j, mode in enumerate(m for m in _MODE_COLOURS if m in render):
+        ax_render.bar(np.arange(len(lenses)) + (j - 0.5) * 0.4, [render[mode].get(lens, np.nan) for lens in lenses],
+                      0.4, color=_MODE_COLOURS[mode], edgecolor="k", linewidth=0.4, label=mode)
+    ax_render.set_xticks(range(len(lenses)), lenses, rotation=30, ha="right", fontsize=8)
+    ax_render.set_ylabel("render [ms/frame]")
+    ax_render.set_title("rendering (fisheyes: cube map + remap)", fontsize=9)
+    ax_render.legend(frameon=False, fontsize=8)
+    ax_render.grid(axis="y", alpha=0.3)
+    return fig
+
+
+def plot_lens_views(views: dict, fig=None):
+    """Each lens's passive view of the target and, below, its rectified view.
+
+    ``views`` maps a lens name to ``(image, rectified)`` (:func:`gimbal_lab.studies.lens_sweep.example_view`;
+    ``rectified`` None for the pinhole). The fisheyes' rectified views are 90° pinholes: the target,
+    0.7 of the half field off the axis, lies outside them.
+    """
+    if not views:
+        raise ValueError("no views to plot")
+    n = len(views)
+    if fig is None:
+        fig = plt.figure(figsize=(2.3 * n, 4.0), layout="constrained")
+    axes = fig.subplots(2, n, squeeze=False)
+    for j, (name, (image, rectified)) in enumerate(views.items()):
+        axes[0, j].imshow(image)
+        axes[0, j].set_title(name, fontsize=9)
+        if rectified is not None:
+            axes[1, j].imshow(rectified)
+        else:
+            axes[1, j].text(0.5, 0.5, "no lens:\nnothing to rectify", ha="center", va="center", fontsize=8,
+                            transform=axes[1, j].transAxes)
+        for ax in axes[:, j]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    axes[0, 0].set_ylabel("camera image", fontsize=9)
+    axes[1, 0].set_ylabel("rectified", fontsize=9)
     return fig

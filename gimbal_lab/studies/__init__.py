@@ -12,7 +12,8 @@ from importlib import import_module
 __all__ = ["STUDIES", "load"]
 
 #: Study name → module (``gimbal-lab run --list`` prints them).
-STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone"}
+STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone",
+           "lens-sweep": "gimbal_lab.studies.lens_sweep"}
 
 
 def load(name: str):
