@@ -32,6 +32,7 @@ import threading
 import time
 import warnings
 from concurrent.futures import Executor, FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -191,7 +192,12 @@ def _prepare_process() -> None:
         return
     os.environ.setdefault("LP_NUM_THREADS", "1")
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    import faulthandler
+
     import cv2
+
+    if not faulthandler.is_enabled() and sys.stderr is not None:
+        faulthandler.enable()  # a crash in native code prints the Python stack that led to it
 
     cv2.setNumThreads(1)
     _PREPARED = True
@@ -252,6 +258,11 @@ def _single_threaded_children():
 def _local_pool(jobs: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_local_worker_init,
                                initargs=(os.getpid(),))
+
+
+#: How many times one :func:`run` replaces a local pool whose worker died (a crash in native code,
+#: or a worker killed from outside) before it gives up: the unfinished runs go to the new pool.
+MAX_POOL_RESTARTS = 2
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -360,10 +371,28 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
                 pool = executor if executor is not None else _local_pool(min(jobs, len(todo)))
                 futures = {pool.submit(_run_one, c): c for c in todo}
                 pending = set(futures)
+                restarts = 0
                 while pending:
                     finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    broken = [fut for fut in finished if isinstance(fut.exception(), BrokenProcessPool)]
                     for fut in finished:
-                        finish(futures[fut], fut.result())
+                        if fut not in broken:
+                            finish(futures[fut], fut.result())
+                    if not broken:
+                        continue
+                    # A local worker died: every queued run of that pool fails with it. The runs are
+                    # deterministic, so a new pool computes exactly what the dead one would have.
+                    if executor is not None or restarts >= MAX_POOL_RESTARTS:
+                        broken[0].result()
+                    restarts += 1
+                    _stop_pool(pool)
+                    unfinished = [c for c in todo if unique[c] is None]
+                    warnings.warn(f"a worker process died ({broken[0].exception()}); starting new workers for the "
+                                  f"{len(unfinished)} unfinished run(s), {MAX_POOL_RESTARTS - restarts} restart(s) "
+                                  "left", RuntimeWarning, stacklevel=2)
+                    pool = _local_pool(min(jobs, len(unfinished)))
+                    futures = {pool.submit(_run_one, c): c for c in unfinished}
+                    pending = set(futures)
         except BaseException as exc:
             # Ctrl-C or a failed run: stop the rest at once instead of computing runs nobody will see
             if pool is not None and executor is None:

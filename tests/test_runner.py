@@ -523,6 +523,30 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
 
 
 @needs_proc
+def test_a_worker_killed_mid_sweep_is_replaced_and_every_run_lands_unchanged(tmp_path):
+    """A worker that dies (a crash in native code, the out-of-memory killer; here SIGKILL) breaks
+    the local pool; the sweep starts new workers for the unfinished runs, says so, and ends with
+    every run stored, each bit-equal to a clean run."""
+    configs = [cfg(revolutions=10, seed=60), cfg(revolutions=2, seed=61), cfg(revolutions=2, mode="active", seed=62)]
+    with _sweep(tmp_path, configs) as (proc, runs, _, seen):
+        _wait_first_result(proc, runs, seen)
+        workers = [p for p in _workers(seen, proc.pid) if _alive(p)]
+        assert workers, seen
+        os.kill(workers[0].pid, signal.SIGKILL)
+        proc.wait(timeout=180)
+        seen |= _descendants(proc.pid)
+    out, err = _output(tmp_path)
+    assert proc.returncode == 0, err
+    assert "a worker process died" in err and "starting new workers" in err, err
+    report = _last_report(out)
+    assert report["event"] == "done", report
+    stored = _stored_frames(runs, report["source_hash"])
+    assert sorted(stored) == sorted(c.key for c in configs)
+    for result in run(configs, jobs=1, progress=False):
+        assert_frame_equal(stored[result.config.key], result.frames, check_exact=True)
+
+
+@needs_proc
 def test_workers_ignore_sigint_and_sigkill_of_the_parent_leaves_no_orphans(tmp_path):
     # One long run keeps a worker busy; the other worker finishes its short run and idles.
     configs = [cfg(revolutions=60, seed=40), cfg(seed=41)]
