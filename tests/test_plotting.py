@@ -4,6 +4,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 
+import matplotlib.pyplot as plt
+import pandas as pd
 import pytest
 
 from gimbal_lab.camera import BrownConrady, Intrinsics
@@ -174,3 +176,44 @@ def test_forest_prints_each_rows_unit_and_says_when_there_is_no_interval():
     ax = study.plot_forest(verdicts)
     texts = [t.get_text() for t in ax.texts]
     assert texts == ["-20.0 [-25.0, -15.0] mm", "+2.0 [+1.0, +3.0] px", "no interval: 0 complete pair(s)"]
+
+
+def _lens_summary():
+    """A two-lens, two-target summary in the shape of lens_sweep.summary_table."""
+    rows = []
+    for target, base in (("sphere", 2.0), ("aruco", 9.0)):
+        for lens, family, strategies in (("pinhole", "brown-conrady", ("ignore",)),
+                                         ("fisheye 120°", "fisheye", ("ignore", "undistort", "rectify"))):
+            for strategy in strategies:
+                for mode, extra in (("passive", 0.0), ("active", 0.4)):
+                    rows.append(dict(target=target, lens=lens, family=family, strategy=strategy, mode=mode,
+                                     mean_abs_error_m=0.010 if mode == "active" else 0.200, ci_low_m=0.008,
+                                     ci_high_m=0.012, detection_rate_pct=100.0 if strategy != "rectify" else 30.0,
+                                     estimate_ms=base + extra + (1.0 if strategy == "rectify" else 0.0),
+                                     render_ms=5.0 if lens == "pinhole" else 14.0))
+    return pd.DataFrame(rows)
+
+
+def test_lens_costs_draw_each_targets_strategies_as_the_mean_of_the_modes():
+    from gimbal_lab.plotting.study import plot_lens_costs
+
+    fig = plot_lens_costs(_lens_summary())
+    sphere_ax = fig.axes[0]
+    heights = sorted(round(p.get_height(), 6) for p in sphere_ax.patches if p.get_height() > 0)
+    # sphere: pinhole ignore 2.2; fisheye ignore 2.2, undistort 2.2, rectify 3.2 (means of 2.0 and 2.4)
+    assert heights == [2.2, 2.2, 2.2, 3.2]
+    assert "sphere" in sphere_ax.get_title() and "ArUco" in fig.axes[1].get_title()
+    render = sorted(round(p.get_height(), 6) for p in fig.axes[2].patches)
+    assert render == [5.0, 5.0, 14.0, 14.0]
+    plt.close(fig)
+
+
+def test_lens_sweep_plots_one_line_per_strategy_and_rejects_unknown_values():
+    from gimbal_lab.plotting.study import plot_lens_sweep
+
+    fig = plot_lens_sweep(_lens_summary(), "detection_rate_pct")
+    labels = fig.axes[0].get_legend_handles_labels()[1] + fig.axes[1].get_legend_handles_labels()[1]
+    assert {"ignore", "undistort", "rectify"} <= set(labels)
+    plt.close(fig)
+    with pytest.raises(ValueError, match="value must be one of"):
+        plot_lens_sweep(_lens_summary(), "speed")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -11,7 +13,7 @@ from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
            "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions", "plot_lens_sweep",
-           "plot_lens_costs", "plot_lens_views"]
+           "plot_lens_costs", "plot_lens_views", "plot_lens_radii"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
@@ -517,32 +519,43 @@ def plot_lens_sweep(summary, value: str = "mean_abs_error_m", fig=None):
 
 
 def plot_lens_costs(summary, fig=None):
-    """Cost per frame of each lens strategy (detection + localisation, rectification included) and
-    of rendering, per lens, with 95 % intervals over replicates (both modes and targets pooled by
-    their cell means)."""
+    """Cost per frame of each lens strategy, per target, and of rendering, per lens.
+
+    Left panels (one per target): detection and localisation per frame, rectification included,
+    for each strategy: the mean of the passive and active cells, the whisker spanning the two.
+    Right: rendering per frame, passive (a still camera) and active (a turning one), where the
+    fisheyes' cube map shows. All are wall times measured inside the runs.
+    """
     if summary.empty:
         raise ValueError("summary holds no rows")
     lenses = list(dict.fromkeys(summary["lens"]))
+    targets = list(dict.fromkeys(summary["target"]))
     if fig is None:
-        fig = plt.figure(figsize=(10, 3.8), layout="constrained")
-    ax_est, ax_render = fig.subplots(1, 2, gridspec_kw={"width_ratios": (2, 1)})
+        fig = plt.figure(figsize=(4.6 * len(targets) + 4.2, 3.9), layout="constrained")
+    axes = fig.subplots(1, len(targets) + 1, gridspec_kw={"width_ratios": [2] * len(targets) + [1.6]})
     width = 0.8 / len(_STRATEGY_COLOURS)
-    for j, (strategy, colour) in enumerate(_STRATEGY_COLOURS.items()):
-        per_lens = summary[summary["strategy"] == strategy].groupby("lens", sort=False)["estimate_ms"]
-        means = np.array([per_lens.mean().get(lens, np.nan) for lens in lenses])
-        spread = np.array([per_lens.std().get(lens, np.nan) for lens in lenses])
-        ax_est.bar(np.arange(len(lenses)) + (j - 1) * width, np.nan_to_num(means), width,
-                   yerr=np.nan_to_num(spread), capsize=2, color=colour, edgecolor="k", linewidth=0.4, label=strategy)
-    ax_est.set_xticks(range(len(lenses)), lenses, rotation=30, ha="right", fontsize=8)
-    ax_est.set_ylabel("detection + localisation [ms/frame]")
-    ax_est.set_title("cost of each lens strategy (bars: mean over targets and modes, ± s.d.)", fontsize=9)
-    ax_est.legend(frameon=False, fontsize=8)
-    ax_est.grid(axis="y", alpha=0.3)
+    x = np.arange(len(lenses))
+    for ax, target in zip(axes, targets):
+        df = summary[summary["target"] == target]
+        for j, (strategy, colour) in enumerate(_STRATEGY_COLOURS.items()):
+            per_lens = df[df["strategy"] == strategy].groupby("lens", sort=False)["estimate_ms"]
+            mean, low, high = (np.array([getattr(per_lens, f)().get(lens, np.nan) for lens in lenses])
+                               for f in ("mean", "min", "max"))
+            yerr = np.nan_to_num(np.vstack((mean - low, high - mean)))
+            ax.bar(x + (j - 1) * width, np.nan_to_num(mean), width, yerr=yerr, capsize=2, color=colour,
+                   edgecolor="k", linewidth=0.4, label=strategy)
+        ax.set_xticks(x, lenses, rotation=30, ha="right", fontsize=8)
+        ax.set_ylabel("detection + localisation [ms/frame]")
+        ax.set_title(f"{_TARGET_TITLES.get(target, target)}: cost of each lens strategy", fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_ylim(0, 1.2 * ax.get_ylim()[1])  # room for the legend above the bars
+    axes[0].legend(frameon=False, fontsize=8, loc="upper left", ncol=3)
+    ax_render = axes[-1]
     render = summary.groupby(["lens", "mode"], sort=False)["render_ms"].mean().unstack()
     for j, mode in enumerate(m for m in _MODE_COLOURS if m in render):
-        ax_render.bar(np.arange(len(lenses)) + (j - 0.5) * 0.4, [render[mode].get(lens, np.nan) for lens in lenses],
-                      0.4, color=_MODE_COLOURS[mode], edgecolor="k", linewidth=0.4, label=mode)
-    ax_render.set_xticks(range(len(lenses)), lenses, rotation=30, ha="right", fontsize=8)
+        ax_render.bar(x + (j - 0.5) * 0.4, [render[mode].get(lens, np.nan) for lens in lenses], 0.4,
+                      color=_MODE_COLOURS[mode], edgecolor="k", linewidth=0.4, label=mode)
+    ax_render.set_xticks(x, lenses, rotation=30, ha="right", fontsize=8)
     ax_render.set_ylabel("render [ms/frame]")
     ax_render.set_title("rendering (fisheyes: cube map + remap)", fontsize=9)
     ax_render.legend(frameon=False, fontsize=8)
@@ -577,3 +590,49 @@ def plot_lens_views(views: dict, fig=None):
     axes[0, 0].set_ylabel("camera image", fontsize=9)
     axes[1, 0].set_ylabel("rectified", fontsize=9)
     return fig
+
+
+def plot_lens_radii(configs: dict, ax=None):
+    """Image radius against field angle for each lens, up to the image's corner.
+
+    ``configs`` maps a label to a :class:`gimbal_lab.simulation.TrackingConfig` (its intrinsics and
+    lens); rays in the horizontal plane are projected through each, so Brown–Conrady's tangential
+    terms show as they act along x. A dot marks the cone trajectory's angle
+    (:data:`gimbal_lab.simulation.CONE_FIELD_FRACTION` of the half field) for configs on the cone.
+    """
+    from ..camera import project
+    from ..simulation import CONE_FIELD_FRACTION
+
+    if not configs:
+        raise ValueError("no lenses to plot")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7.5, 4.2), layout="constrained")
+    for j, (label, config) in enumerate(configs.items()):
+        K = config.intrinsics
+        corner = float(np.hypot(K.width - 1 - K.cx, K.height - 1 - K.cy))
+        theta = np.linspace(0.0, math.radians(179.0), 1000)
+        fisheye = config.lens is not None and type(config.lens).__name__ == "KannalaBrandt"
+        if not fisheye:
+            theta = theta[theta < math.radians(85.0)]
+        rays = np.column_stack((np.sin(theta), np.zeros_like(theta), np.cos(theta)))
+        radius = project(rays, K, config.lens)[:, 0] - K.cx
+        keep = radius <= corner
+        if not fisheye:  # a barrel polynomial turns back beyond its field: keep its rising part
+            rising = np.r_[True, np.diff(radius) > 0]
+            keep &= np.cumprod(rising).astype(bool)
+        colour = plt.cm.viridis(j / max(len(configs) - 1, 1))
+        ax.plot(np.degrees(theta[keep]), radius[keep], color=colour, label=label)
+        if config.trajectory == "cone":
+            beta = CONE_FIELD_FRACTION * 0.5 * config.hfov_rad
+            r = project(np.array([[math.sin(beta), 0.0, math.cos(beta)]]), K, config.lens)[0, 0] - K.cx
+            ax.plot(math.degrees(beta), r, "o", color=colour, ms=5)
+    ax.axhline(319.5, color="0.6", ls=":", lw=1)
+    ax.axhline(float(np.hypot(319.5, 239.5)), color="0.6", ls="--", lw=1)
+    ax.annotate("image edge (x)", (2, 322), fontsize=7, color="0.4")
+    ax.annotate("image corner", (2, 402), fontsize=7, color="0.4")
+    ax.set_xlabel("angle of the ray off the optical axis [deg]")
+    ax.set_ylabel("image radius [px]")
+    ax.set_ylim(0, 420)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, frameon=False, loc="lower right")
+    return ax.figure

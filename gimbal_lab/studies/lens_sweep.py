@@ -419,7 +419,7 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
 # ----------------------------------------------------------------------------------------------
 # report
 # ----------------------------------------------------------------------------------------------
-def example_view(study: LensSweepStudy, target: str, lens: str, phase: float = 0.25):
+def example_view(study: LensSweepStudy, target: str, lens: str, phase: float = 0.125):
     """The passive camera's frame of one lens with the target ``phase`` of a period into its cone
     (no noise), and its rectified view (None for the pinhole): ``(image, rectified, config)``."""
     from ..detection import Rectifier
