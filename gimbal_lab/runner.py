@@ -346,12 +346,15 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
 
         bar = tqdm(total=sum(c.n_frames for c in todo), desc=desc, unit="frame", dynamic_ncols=True)
     done = 0
+    saving = None  # the run being stored: Ctrl-C may land after its files are written, before it is counted
 
     def finish(config, result):
-        nonlocal done
+        nonlocal done, saving
+        saving = config
         if store is not None:
             store.save(result)
         unique[config] = result  # only now: a run counts as kept once it is stored
+        saving = None
         done += 1
         seconds = result.timing.get("total_s", float("nan"))
         log.info("%s seed %d: %d frames in %.1f s", config.label, config.seed, len(result.frames), seconds)
@@ -401,6 +404,8 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
             for fut in futures:
                 fut.cancel()
             if isinstance(exc, KeyboardInterrupt):
+                if saving is not None and unique[saving] is None and store is not None:
+                    unique[saving] = store.load(saving)  # stored whole before Ctrl-C landed, or None
                 kept = sum(r is not None for r in unique.values())
                 raise RunInterrupted(kept, len(unique), store) from None
             raise

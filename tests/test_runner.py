@@ -502,8 +502,10 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
     assert not re.search(r"Traceback|KeyboardInterrupt|^Process \w*Process-\d+:", err, re.M), err
     assert report["total"] == 2 and report["kept"] == 1, report
     sidecars = sorted(runs.glob("*.json"))
-    # the run said to be kept is in the store, complete
-    assert report["kept"] == report["saved"] == len(sidecars), (report, sidecars)
+    # the run said to be kept is in the store, complete, even when Ctrl-C lands while it is being
+    # stored (the sweep script's own count of saves can then miss the last one: at most one short)
+    assert report["kept"] == len(sidecars), (report, sidecars)
+    assert report["kept"] - 1 <= report["saved"] <= report["kept"], report
     assert not [p for p in runs.iterdir() if p.name.endswith(".tmp")]
 
     # The same command again resumes: only the missing runs are computed.
@@ -743,3 +745,28 @@ def test_a_worker_keeps_at_most_max_renderers_and_closes_the_least_recently_used
     runner._renderer_for(configs[runner.MAX_RENDERERS + 1])
     assert [r.config for r in closed] == [configs[1], configs[2]]
     assert len(runner._RENDERERS) == runner.MAX_RENDERERS and len(made) == runner.MAX_RENDERERS + 2
+
+
+@pytest.mark.parametrize("lands", ["after the files", "before the sidecar"])
+def test_ctrl_c_while_a_run_is_being_stored_counts_it_exactly_when_it_is_whole(tmp_path, monkeypatch, lands):
+    """Ctrl-C can land inside ``store.save``: after both files are written the run is kept and
+    counted; before its sidecar is written it is neither (its table alone is not a stored run)."""
+    configs = [cfg(seed=70), cfg(seed=71)]
+    original = ResultsStore.save
+
+    def save_then_interrupt(self, result):
+        if result.config.seed == 71:
+            if lands == "after the files":
+                original(self, result)
+            else:
+                table, _ = self.paths(result.config)
+                result.frames.to_parquet(table, index=False)
+            raise KeyboardInterrupt
+        original(self, result)
+
+    monkeypatch.setattr(ResultsStore, "save", save_then_interrupt)
+    with pytest.raises(RunInterrupted) as caught:
+        run(configs, store=tmp_path / "s", jobs=1, progress=False)
+    expected = 2 if lands == "after the files" else 1
+    assert (caught.value.kept, caught.value.total) == (expected, 2)
+    assert len(list((tmp_path / "s" / "runs").glob("*.json"))) == expected
