@@ -26,6 +26,7 @@ Rendering needs an OpenGL context: a process that ran :func:`simulate` must not 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -310,10 +311,7 @@ class TrackingConfig:
     @property
     def home_camera_m(self) -> np.ndarray:
         """The camera's optical centre at the gimbal's home pose with the body at rest, world frame, m."""
-        from .kinematics import GimbalKinematics
-
-        return np.array(BODY_POSITION_M[:2] + (self.altitude_m,)) + GimbalKinematics.default().T_body_cam(
-            np.zeros(3))[:3, 3]
+        return np.array(BODY_POSITION_M[:2] + (self.altitude_m,)) + _home_camera_offset_m()
 
     @property
     def path(self) -> Trajectory:
@@ -511,6 +509,17 @@ class _Estimator:
         if pose is None:
             return None, None, None
         return self._centre(pose.center_px), np.asarray(pose.t_cam_marker_m, float), None
+
+
+@functools.lru_cache(maxsize=1)
+def _home_camera_offset_m() -> np.ndarray:
+    """The study gimbal's optical centre at its home pose, body frame, m (computed once: the cone
+    trajectory needs it on every frame)."""
+    from .kinematics import GimbalKinematics
+
+    offset = GimbalKinematics.default().T_body_cam(np.zeros(3))[:3, 3]
+    offset.setflags(write=False)
+    return offset
 
 
 #: Where the UAV body sits in the world during the study (static, level, facing +x).

@@ -3,6 +3,7 @@ environment."""
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from dataclasses import asdict, fields
@@ -107,3 +108,76 @@ def write_report_files(folder, writers, study_name: str, params: StudyParams, n_
             "source_hash": source_hash(), "runs": n_runs}
     (folder / "study.json").write_text(json.dumps(meta, indent=1))
     return written + [folder / "study.json"]
+
+
+# ----------------------------------------------------------------------------------------------
+# verdict tables of the extension studies (claims.md)
+# ----------------------------------------------------------------------------------------------
+def amount(value: float, unit: str) -> str:
+    """A verdict quantity as printed: metres in mm, any other unit as it is, two decimals."""
+    return f"{1000 * value:.2f}" if unit == "m" else f"{value:.2f}"
+
+
+def unit_name(unit: str) -> str:
+    """The printed unit of a verdict row's ``unit`` ("m" is printed in mm)."""
+    return "mm" if unit == "m" else unit
+
+
+def verdict_reason(row, no_pairs: str) -> str:
+    """One sentence of measured reason for a verdict (empty for one that holds); ``no_pairs`` says
+    why a row without an interval had nothing to compare (it follows "only N replicate(s) ")."""
+    from .. import stats
+
+    u, f = unit_name(row.unit), lambda x: amount(x, row.unit)  # noqa: E731
+    if row.verdict == stats.HOLDS:
+        return ""
+    if not math.isfinite(row.low):
+        return f"only {row.n} replicate(s) {no_pairs}: nothing to compare"
+    if row.verdict == stats.DOES_NOT_HOLD and row.low > 0:
+        return (f"the opposite is measured: {row.a} exceeds {row.b} by {f(row.difference)} {u} "
+                f"(95 % interval [{f(row.low)}, {f(row.high)}] {u})")
+    if row.verdict == stats.DOES_NOT_HOLD:
+        return f"no effect worth the name: the interval [{f(row.low)}, {f(row.high)}] {u} lies within ±δ = {f(row.delta)} {u}"
+    if row.high < 0:
+        return f"the difference {f(row.difference)} {u} is real but smaller than δ = {f(row.delta)} {u}"
+    return f"the interval [{f(row.low)}, {f(row.high)}] {u} straddles 0 and reaches beyond ±δ = {f(row.delta)} {u}"
+
+
+def verdict_lines(verdicts, reason, unit_in_list: bool = False) -> list[str]:
+    """claims.md's verdict table, the count per hypothesis and the list of conditions that do not
+    hold or are inconclusive, each with ``reason(row)`` (the unit beside the condition when
+    ``unit_in_list``)."""
+    from .. import stats
+
+    lines = ["| id | claim | condition | a | b | n | mean a | mean b | a − b [95 % CI] | δ | unit | verdict |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in verdicts.itertuples():
+        f = lambda x: amount(x, row.unit)  # noqa: E731
+        lines.append(f"| {row.id} | {row.statement} | {row.condition} | {row.a} | {row.b} | {row.n} | {f(row.mean_a)} | "
+                     f"{f(row.mean_b)} | {f(row.difference)} [{f(row.low)}, {f(row.high)}] | {f(row.delta)} | "
+                     f"{unit_name(row.unit)} | **{row.verdict}** |")
+    lines += ["", "| hypothesis | " + " | ".join(stats.VERDICTS) + " |", "|---|---|---|---|"]
+    for cid, g in verdicts.groupby("id", sort=False):
+        counts = g["verdict"].value_counts()
+        lines.append(f"| {cid} | " + " | ".join(str(counts.get(v, 0)) for v in stats.VERDICTS) + " |")
+    failing = verdicts[verdicts["verdict"] != stats.HOLDS]
+    lines += ["", "## Conditions that do not hold or are inconclusive", ""]
+    if failing.empty:
+        lines.append("Every condition holds.")
+    for row in failing.itertuples():
+        unit = f", {unit_name(row.unit)}" if unit_in_list else ""
+        lines.append(f"- **{row.id}** ({row.condition}: {row.a} vs {row.b}{unit}), {row.verdict}: {reason(row)}.")
+    return lines
+
+
+def run_and_report(name: str, desc: str, configs, write_report, study, out, *, store=None, executor=None, jobs=None,
+                   progress=True) -> dict:
+    """Run ``configs`` (reusing ``store``), then ``write_report(folder, results, study)`` into
+    ``out/name`` atomically. Returns a dict with the results, the folder and the paths written."""
+    from ..runner import run, staged_folder
+
+    results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc=desc)
+    with staged_folder(Path(out) / name) as tmp:
+        written = write_report(tmp, results, study)
+    final = Path(out) / name
+    return {"results": results, "folder": final, "written": [final / p.relative_to(tmp) for p in written]}

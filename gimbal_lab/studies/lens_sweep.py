@@ -40,6 +40,7 @@ import pandas as pd
 from .. import stats
 from ..camera import BrownConrady, Intrinsics, KannalaBrandt
 from ..simulation import TrackingConfig, _choice, _number
+from . import _params
 from ._params import StudyParams, report_pyplot, write_report_files
 from .paper import replicate_phase_s
 
@@ -86,17 +87,15 @@ class Lens:
 
     @property
     def focal_px(self) -> float:
-        return self.config_fields()["_f"]
+        """Focal length at 640 px across: the equidistant rule for a fisheye, the pinhole's otherwise."""
+        hfov = math.radians(self.hfov_deg)
+        if self.family == "fisheye":
+            return KannalaBrandt.equidistant_for_fov(640, hfov)[1]
+        return Intrinsics.from_fov(640, 480, hfov).fx
 
     def config_fields(self) -> dict:
-        """The TrackingConfig fields of this lens (and, under "_f", its focal length, px)."""
-        hfov = math.radians(self.hfov_deg)
-        lens = self.model
-        if isinstance(lens, KannalaBrandt):
-            f = KannalaBrandt.equidistant_for_fov(640, hfov)[1]
-        else:
-            f = Intrinsics.from_fov(640, 480, hfov).fx
-        return {"distortion": lens, "hfov_rad": hfov, "_f": f}
+        """The TrackingConfig fields of this lens."""
+        return {"distortion": self.model, "hfov_rad": math.radians(self.hfov_deg)}
 
 
 LENSES = (
@@ -161,10 +160,9 @@ class LensSweepStudy(StudyParams):
         _choice("lens", lens, tuple(_LENS))
         _choice("strategy", strategy, strategies_for(lens))
         _choice("mode", mode, MODES)
-        fields = _LENS[lens].config_fields()
-        scale = REFERENCE_FOCAL_PX / fields.pop("_f")
+        scale = REFERENCE_FOCAL_PX / _LENS[lens].focal_px
         return TrackingConfig(
-            target=target, trajectory="cone", mode=mode, lens_strategy=strategy, **fields,
+            target=target, trajectory="cone", mode=mode, lens_strategy=strategy, **_LENS[lens].config_fields(),
             sphere_radius_m=0.10 * scale, marker_length_m=0.30 * scale, altitude_m=ALTITUDE_M,
             start_phase_s=replicate_phase_s(seed, self.period_s), revolutions=self.revolutions,
             period_s=self.period_s, fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
@@ -192,8 +190,8 @@ def lens_name(config: TrackingConfig) -> str:
     """The :data:`LENSES` name of a config's lens (ValueError for a lens outside the sweep)."""
     for lens in LENSES:
         fields = lens.config_fields()
-        same_lens = (config.lens or BrownConrady()) == (fields["distortion"] if lens.strength else BrownConrady())
-        if same_lens and math.isclose(config.hfov_rad, fields["hfov_rad"]):
+        # the pinhole's model is Brown–Conrady with zero coefficients, which a config holds as no lens
+        if (config.lens or BrownConrady()) == fields["distortion"] and math.isclose(config.hfov_rad, fields["hfov_rad"]):
             return lens.name
     raise ValueError(f"the config's lens {config.lens!r} at {math.degrees(config.hfov_rad):.1f}° is not one of the "
                      "sweep's")
@@ -334,32 +332,10 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
     return stats.verdict_table(rows)
 
 
-def _amount(value: float, unit: str) -> str:
-    return f"{1000 * value:.2f}" if unit == "m" else f"{value:.2f}"
-
-
-def _unit(unit: str) -> str:
-    return "mm" if unit == "m" else unit
-
-
 def verdict_reason(row) -> str:
     """One sentence of measured reason for a verdict (empty for a hypothesis that holds)."""
-    u, amount = _unit(row.unit), lambda x: _amount(x, row.unit)
-    if row.verdict == stats.HOLDS:
-        return ""
-    if not math.isfinite(row.low):
-        return (f"only {row.n} replicate(s) have a value on both sides (a strategy that never detects the target "
-                "leaves no common frames): nothing to compare")
-    if row.verdict == stats.DOES_NOT_HOLD and row.low > 0:
-        return (f"the opposite is measured: {row.a} exceeds {row.b} by {amount(row.difference)} {u} "
-                f"(95 % interval [{amount(row.low)}, {amount(row.high)}] {u})")
-    if row.verdict == stats.DOES_NOT_HOLD:
-        return (f"no effect worth the name: the interval [{amount(row.low)}, {amount(row.high)}] {u} lies within "
-                f"±δ = {amount(row.delta)} {u}")
-    if row.high < 0:
-        return f"the difference {amount(row.difference)} {u} is real but smaller than δ = {amount(row.delta)} {u}"
-    return (f"the interval [{amount(row.low)}, {amount(row.high)}] {u} straddles 0 and reaches beyond ±δ = "
-            f"{amount(row.delta)} {u}")
+    return _params.verdict_reason(row, "have a value on both sides (a strategy that never detects the target "
+                                       "leaves no common frames)")
 
 
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
@@ -386,25 +362,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         "within ±δ (does not hold, no effect) means the two are equally accurate, which meets the design's “at least "
         "as accurate”; only an interval above 0 contradicts it.",
         "",
-        "| id | claim | condition | a | b | n | mean a | mean b | a − b [95 % CI] | δ | unit | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for row in verdicts.itertuples():
-        f = lambda x: _amount(x, row.unit)  # noqa: E731
-        lines.append(f"| {row.id} | {row.statement} | {row.condition} | {row.a} | {row.b} | {row.n} | {f(row.mean_a)} | "
-                     f"{f(row.mean_b)} | {f(row.difference)} [{f(row.low)}, {f(row.high)}] | {f(row.delta)} | "
-                     f"{_unit(row.unit)} | **{row.verdict}** |")
-    lines += ["", "| hypothesis | " + " | ".join(stats.VERDICTS) + " |", "|---|---|---|---|"]
-    for cid, g in verdicts.groupby("id", sort=False):
-        counts = g["verdict"].value_counts()
-        lines.append(f"| {cid} | " + " | ".join(str(counts.get(v, 0)) for v in stats.VERDICTS) + " |")
-    failing = verdicts[verdicts["verdict"] != stats.HOLDS]
-    lines += ["", "## Conditions that do not hold or are inconclusive", ""]
-    if failing.empty:
-        lines.append("Every condition holds.")
-    for row in failing.itertuples():
-        lines.append(f"- **{row.id}** ({row.condition}: {row.a} vs {row.b}, {_unit(row.unit)}), {row.verdict}: "
-                     f"{verdict_reason(row)}.")
+    lines += _params.verdict_lines(verdicts, verdict_reason, unit_in_list=True)
     if summary is not None and len(summary):
         lines += ["", "## Error, detection rate and cost per lens and strategy (measured revolutions)", "",
                   "| target | lens | strategy | mode | error mm [95 % CI] | detected % | estimate ms/frame | "
@@ -482,13 +441,8 @@ def run_study(study: LensSweepStudy, out, *, store=None, executor=None, jobs=Non
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
     Returns a dict with the results, the folder and the paths written.
     """
-    from ..runner import run, staged_folder
-
-    results = run(grid(study), store=store, executor=executor, jobs=jobs, progress=progress, desc="lens sweep")
-    with staged_folder(Path(out) / NAME) as tmp:
-        written = write_report(tmp, results, study)
-    final = Path(out) / NAME
-    return {"results": results, "folder": final, "written": [final / p.relative_to(tmp) for p in written]}
+    return _params.run_and_report(NAME, "lens sweep", grid(study), write_report, study, out, store=store,
+                                  executor=executor, jobs=jobs, progress=progress)
 
 
 def cone_pointing_demand(config: TrackingConfig) -> dict:

@@ -35,6 +35,7 @@ from .. import stats
 from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
 from ..simulation import TrackingConfig, _choice, _number
+from . import _params
 from ._params import StudyParams, report_pyplot, write_report_files
 from .paper import replicate_phase_s
 
@@ -315,31 +316,9 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
     return stats.verdict_table(rows)
 
 
-def _amount(value: float, unit: str) -> str:
-    return f"{1000 * value:.2f}" if unit == "m" else f"{value:.2f}"
-
-
-def _unit(unit: str) -> str:
-    return "mm" if unit == "m" else "px"
-
-
 def verdict_reason(row) -> str:
     """One sentence of measured reason for a verdict (empty for a hypothesis that holds)."""
-    u, amount = _unit(row.unit), lambda x: _amount(x, row.unit)
-    if row.verdict == stats.HOLDS:
-        return ""
-    if not math.isfinite(row.low):
-        return f"only {row.n} replicate(s) have frames where every mount detected the target: nothing to compare"
-    if row.verdict == stats.DOES_NOT_HOLD and row.low > 0:
-        return (f"the opposite is measured: {row.a} exceeds {row.b} by {amount(row.difference)} {u} "
-                f"(95 % interval [{amount(row.low)}, {amount(row.high)}] {u})")
-    if row.verdict == stats.DOES_NOT_HOLD:
-        return (f"no effect worth the name: the interval [{amount(row.low)}, {amount(row.high)}] {u} lies within "
-                f"±δ = {amount(row.delta)} {u}")
-    if row.high < 0:
-        return (f"the difference {amount(row.difference)} {u} is real but smaller than δ = {amount(row.delta)} {u}")
-    return (f"the interval [{amount(row.low)}, {amount(row.high)}] {u} straddles 0 and reaches beyond ±δ = "
-            f"{amount(row.delta)} {u}")
+    return _params.verdict_reason(row, "have frames where every mount detected the target")
 
 
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
@@ -363,24 +342,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         f"and {STREAK_FLOOR_PX:g} px for streaks; **does not hold** when it lies above 0 or within ±δ; otherwise "
         "**inconclusive**. A replicate without common detections drops out of its pair.",
         "",
-        "| id | claim | condition | a | b | n | mean a | mean b | a − b [95 % CI] | δ | unit | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for row in verdicts.itertuples():
-        f = lambda x: _amount(x, row.unit)  # noqa: E731
-        lines.append(f"| {row.id} | {row.statement} | {row.condition} | {row.a} | {row.b} | {row.n} | {f(row.mean_a)} | "
-                     f"{f(row.mean_b)} | {f(row.difference)} [{f(row.low)}, {f(row.high)}] | {f(row.delta)} | "
-                     f"{_unit(row.unit)} | **{row.verdict}** |")
-    lines += ["", "| hypothesis | " + " | ".join(stats.VERDICTS) + " |", "|---|---|---|---|"]
-    for cid, g in verdicts.groupby("id", sort=False):
-        counts = g["verdict"].value_counts()
-        lines.append(f"| {cid} | " + " | ".join(str(counts.get(v, 0)) for v in stats.VERDICTS) + " |")
-    failing = verdicts[verdicts["verdict"] != stats.HOLDS]
-    lines += ["", "## Conditions that do not hold or are inconclusive", ""]
-    if failing.empty:
-        lines.append("Every condition holds.")
-    for row in failing.itertuples():
-        lines.append(f"- **{row.id}** ({row.condition}: {row.a} vs {row.b}), {row.verdict}: {verdict_reason(row)}.")
+    lines += _params.verdict_lines(verdicts, verdict_reason)
     if summary is not None and len(summary):
         lines += ["", "## Detection rate per cell (measured revolutions)", "",
                   "| target | motion | shutter | " + " | ".join(MOUNTS) + " |", "|---|---|---|---|---|---|"]
@@ -453,10 +416,5 @@ def run_study(study: MovingDroneStudy, out, *, store=None, executor=None, jobs=N
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
     Returns a dict with the results, the folder and the paths written.
     """
-    from ..runner import run, staged_folder
-
-    results = run(grid(study), store=store, executor=executor, jobs=jobs, progress=progress, desc="moving drone")
-    with staged_folder(Path(out) / NAME) as tmp:
-        written = write_report(tmp, results, study)
-    final = Path(out) / NAME
-    return {"results": results, "folder": final, "written": [final / p.relative_to(tmp) for p in written]}
+    return _params.run_and_report(NAME, "moving drone", grid(study), write_report, study, out, store=store,
+                                  executor=executor, jobs=jobs, progress=progress)
