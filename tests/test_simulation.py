@@ -350,6 +350,15 @@ def target_pose_at(p_world_h):
     return T
 
 
+def test_the_passive_camera_sees_the_cone_at_its_range_on_every_frame(fisheye_strategy_runs):
+    """The cone is built around the home camera's optical centre: the still camera's true distance
+    to the target (from the mount's own camera pose) is 3 m on every frame, to 1e-9 m."""
+    from gimbal_lab.simulation import CONE_RANGE_M
+
+    d = fisheye_strategy_runs["ignore"].frames["d_true_m"].to_numpy()
+    assert np.abs(d - CONE_RANGE_M).max() < 1e-9
+
+
 def test_knowing_the_fisheye_makes_the_exact_cone_method_exact(fisheye_strategy_runs):
     """The sphere's cone (ellipse) fit, recorded beside the circle method: within 1 % of the distance
     when it undistorts the contour through the fisheye (median; the last frames of this quarter
