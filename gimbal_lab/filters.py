@@ -61,6 +61,8 @@ from scipy.stats import chi2
 __all__ = ["ConstantVelocity", "ConstantAcceleration", "IMM", "nees", "chi2_bounds"]
 
 _I3 = np.eye(3)
+#: Intervals whose IMM models are kept (an occluded track predicts over many multiples of a frame).
+_MODEL_CACHE_SIZE = 128
 _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(8)
 
 
@@ -520,7 +522,7 @@ class IMM(_Tracker):
         if isinstance(sojourn_s, (str, bytes)) or np.ndim(sojourn_s) != 1 or len(sojourn_s) != 2:
             raise ValueError(f"sojourn_s must be two times (CV, CT) in s, got {sojourn_s!r}")
         self.sojourn_s = tuple(_number("sojourn_s", s) for s in sojourn_s)
-        self._cached_models = (None, None)
+        self._cached_models = {}
         super().__init__(velocity_std_m_s, gate_probability, restart_after)
 
     def _reset_state(self):
@@ -541,12 +543,16 @@ class IMM(_Tracker):
         return [(F.copy(), Q.copy()) for F, Q in self._models(dt)]
 
     def _models(self, dt: float):
-        if self._cached_models[0] != dt:  # frames at a steady rate reuse the last interval's
+        models = self._cached_models.get(dt)
+        if models is None:  # frames at a steady rate reuse a few intervals (updates, predictions between)
             F_cv, Q_cv = _cv_model(dt, self.q_accel_m2_s3)
             F, Q = np.zeros((9, 9)), np.zeros((9, 9))
             F[:6, :6], Q[:6, :6] = F_cv, Q_cv
-            self._cached_models = (dt, [(F, Q), _turn_model(dt, self.q_jerk_m2_s5, self.turn_rate_rad_s)])
-        return self._cached_models[1]
+            models = [(F, Q), _turn_model(dt, self.q_jerk_m2_s5, self.turn_rate_rad_s)]
+            if len(self._cached_models) >= _MODEL_CACHE_SIZE:
+                self._cached_models.pop(next(iter(self._cached_models)))
+            self._cached_models[dt] = models
+        return models
 
     def _start(self, z, R):
         x = np.zeros(9)

@@ -25,6 +25,13 @@ Conventions
 * Motion blur: :meth:`SceneRenderer.render_exposure` averages sub-frames in linear light;
   :meth:`SceneRenderer.render_motion` integrates an exposure, global or rolling shutter, from two
   layers and image warps, checked against :meth:`SceneRenderer.render_motion_reference`.
+* Occluders (:class:`Occluder`): matte grey boxes standing in the world between the camera and
+  the target (docs/design.md, "Occlusion and manoeuvres"). They are part of the background, so
+  the windowed anti-aliasing draws them like the ground and the target's window, rendered from
+  the whole scene, shows the target cut by them exactly as a full render does. The fast motion
+  blur composites the target layer over the background and cannot put a target behind an
+  occluder: :meth:`SceneRenderer.render_motion` refuses a scene with occluders (sub-frame
+  exposures, :meth:`SceneRenderer.render_exposure`, are exact).
 * Shading: every material is matte, so pyrender's physically based fragment shader is replaced
   by a Lambertian one (colour = albedo × (ambient + sun · cos θ), exact sRGB output): about a
   third of the frame time on Mesa's CPU rasteriser.
@@ -65,9 +72,11 @@ from __future__ import annotations
 import contextlib
 import ctypes.util
 import faulthandler
+import math
 import os
 import sys
 import threading
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -98,6 +107,9 @@ __all__ = [
     "linear_to_srgb",
     "add_sensor_noise",
     "ARUCO_DICTIONARY",
+    "Occluder",
+    "points_visible",
+    "sphere_rim_points",
 ]
 
 #: The study's ArUco dictionary (paper §3.2.2 / docs/design.md): 4 × 4 bits, 50 ids.
@@ -613,6 +625,121 @@ def _sun_pose() -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------
+# Occluders
+# --------------------------------------------------------------------------------------------
+
+#: The occluders' matte grey (linear albedo): far from the sphere's red and the marker's black.
+OCCLUDER_RGB = (0.35, 0.35, 0.35)
+
+
+@dataclass(frozen=True)
+class Occluder:
+    """A matte box standing in the world, its faces parallel to the world's axes.
+
+    Parameters
+    ----------
+    name : str
+        What it is ("pole", "panel"), for labels.
+    centre_m : (3,) floats
+        Centre of the box, world frame, m.
+    size_m : (3,) floats
+        Extents along world x, y and z, m, each > 0 (a pole 0.15 m wide and square is
+        (0.15, 0.15, height); a panel facing a camera that looks along +x is (thickness, width,
+        height)).
+
+    Examples
+    --------
+    >>> pole = Occluder("pole", centre_m=(1.0, 0.0, 1.0), size_m=(0.15, 0.15, 2.0))
+    >>> pole.blocks((0.0, 0.0, 1.0), [(3.0, 0.0, 1.0), (3.0, 1.0, 1.0)]).tolist()
+    [True, False]
+    """
+
+    name: str
+    centre_m: tuple
+    size_m: tuple
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
+        for field_name in ("centre_m", "size_m"):
+            value = np.asarray(getattr(self, field_name), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)):
+                raise ValueError(f"{field_name} must be three finite numbers (m), got {getattr(self, field_name)!r}")
+            object.__setattr__(self, field_name, tuple(float(v) for v in value))
+        if min(self.size_m) <= 0:
+            raise ValueError(f"size_m must be > 0 on every axis, got {self.size_m!r}")
+
+    @property
+    def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box's lowest and highest corners, world frame, m."""
+        c, half = np.asarray(self.centre_m), 0.5 * np.asarray(self.size_m)
+        return c - half, c + half
+
+    def blocks(self, origin_m, points_m) -> np.ndarray:
+        """Whether the segment from ``origin_m`` to each point passes through the box.
+
+        The slab test: the segment o + t(p − o), t ∈ [0, 1], meets the box when the intervals of
+        t inside each pair of parallel faces overlap. A point inside the box is blocked.
+
+        Parameters
+        ----------
+        origin_m : (3,) floats
+            The viewpoint (a camera's optical centre), m.
+        points_m : array_like, shape (3,) or (N, 3)
+
+        Returns
+        -------
+        ndarray of bool, shape () or (N,)
+        """
+        o = np.asarray(origin_m, dtype=float)
+        p = np.asarray(points_m, dtype=float)
+        if o.shape != (3,) or p.shape[-1:] != (3,):
+            raise ValueError(f"origin_m must have shape (3,) and points_m (..., 3), got {o.shape} and {p.shape}")
+        lo, hi = self.bounds_m
+        d = p - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (lo - o) / d, (hi - o) / d
+        t_near, t_far = np.minimum(t1, t2), np.maximum(t1, t2)
+        parallel = d == 0.0  # a segment parallel to a pair of faces: inside that slab or not at all
+        inside = (o >= lo) & (o <= hi)
+        t_near = np.where(parallel, np.where(inside, -np.inf, np.inf), t_near)
+        t_far = np.where(parallel, np.where(inside, np.inf, -np.inf), t_far)
+        enter, leave = np.max(t_near, axis=-1), np.min(t_far, axis=-1)
+        return (enter <= leave) & (leave >= 0.0) & (enter <= 1.0)
+
+
+def sphere_rim_points(camera_m, centre_m, radius_m: float, n: int = 32) -> np.ndarray:
+    """``n`` points of a sphere's outline as seen from ``camera_m``: its tangent circle, (n, 3), m.
+
+    From a viewpoint at distance D > r the sphere's outline is the circle where the tangent cone
+    touches it: radius r·√(1 − (r/D)²), centred r²/D from the sphere's centre towards the viewpoint.
+    """
+    o, c = np.asarray(camera_m, float), np.asarray(centre_m, float)
+    axis = o - c
+    D = float(np.linalg.norm(axis))
+    r = _positive("radius_m", radius_m)
+    if not D > r:
+        raise ValueError(f"the viewpoint must lie outside the sphere (distance {D:.3g} m <= radius {r:.3g} m)")
+    axis /= D
+    helper = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    phi = 2.0 * np.pi * np.arange(n) / n
+    rim_radius = r * math.sqrt(1.0 - (r / D) ** 2)
+    return c + (r * r / D) * axis + rim_radius * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+
+
+def points_visible(occluders, camera_m, points_m) -> np.ndarray:
+    """Whether each point is seen from ``camera_m`` past every occluder, shape (N,) (or ())."""
+    points = np.asarray(points_m, dtype=float)
+    visible = np.ones(points.shape[:-1], dtype=bool)
+    for occluder in occluders:
+        visible &= ~occluder.blocks(camera_m, points)
+    return visible
+
+
+# --------------------------------------------------------------------------------------------
 # The renderer
 # --------------------------------------------------------------------------------------------
 
@@ -1059,6 +1186,8 @@ class SceneRenderer:
     antialias : {"window", "full"}
         Where a sharp frame is 4× multisampled: around the target only (default, about half
         the cost) or everywhere. The target's pixels are the same either way (module notes).
+    occluders : sequence of Occluder
+        Matte grey boxes in the world that can hide the target (none by default).
 
     Notes
     -----
@@ -1092,6 +1221,7 @@ class SceneRenderer:
         noise_std: float = 0.0,
         seed: int | np.random.Generator | None = None,
         antialias: str = "window",
+        occluders=(),
     ):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
@@ -1122,6 +1252,10 @@ class SceneRenderer:
         if antialias not in ("window", "full"):
             raise ValueError(f"antialias must be 'window' or 'full', got {antialias!r}")
         self.antialias = antialias
+        self.occluders = tuple(occluders)
+        for occluder in self.occluders:
+            if not isinstance(occluder, Occluder):
+                raise TypeError(f"occluders must be Occluder objects, got {type(occluder).__name__}")
 
         self._setup_distortion()
         self._pyrender = _import_pyrender()
@@ -1178,6 +1312,15 @@ class SceneRenderer:
             _quad(pr, _GROUND_SIZE_M / 2, _GROUND_SIZE_M / 2, _matte(pr, (1, 1, 1), ground_tex), uv_scale=tiles)
         )
         scene.add(pr.DirectionalLight(color=np.ones(3), intensity=_SUN_INTENSITY), pose=_sun_pose())
+        if self.occluders:
+            import trimesh
+
+            for occluder in self.occluders:
+                box = pr.Mesh.from_trimesh(trimesh.creation.box(extents=occluder.size_m),
+                                           material=_matte(pr, OCCLUDER_RGB), smooth=False)
+                pose = np.eye(4)
+                pose[:3, 3] = occluder.centre_m
+                scene.add(box, pose=pose)
         if self.target == "sphere":
             import trimesh
 
@@ -1429,6 +1572,9 @@ class SceneRenderer:
         t0, exposure, readout = _check_motion_args(pose_fn, t_start_s, exposure_s, readout_s)
         if exposure == 0 and readout == 0:
             return self.render(*pose_fn(t0))
+        if self.occluders:
+            raise ValueError("render_motion composites the target over the background and cannot hide it behind "
+                             "occluders: use render_exposure (blur='subframes') in a scene with occluders")
         if self._renderer is None:
             raise RuntimeError("the renderer is closed")
         return self._finish(self._motion_canvas(pose_fn, t0, exposure, readout))

@@ -32,6 +32,7 @@ import json
 import math
 import time
 from collections import deque
+from typing import NamedTuple
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -48,11 +49,12 @@ _MODES = ("passive", "active")
 _DISTORTIONS = ("none", "default")
 _SPHERE_METHODS = ("circle", "ellipse")
 _REFINEMENTS = ("none", "subpix", "contour", "apriltag")
-_OUTER_LOOPS = ("paper", "predictive")
+_OUTER_LOOPS = ("paper", "predictive", "filter")
+_TARGET_FILTERS = ("cv", "ca", "imm")
 _MOTIONS = ("static", "hover", "vibration", "flight")
 _PASSIVE_MOUNTS = ("stabilised", "fixed")
 _BLURS = ("subframes", "fast")
-_TRAJECTORIES = ("circular", "diagonal", "cone")
+_TRAJECTORIES = ("circular", "diagonal", "cone", "manoeuvring")
 _LENS_STRATEGIES = ("ignore", "undistort", "rectify")
 
 #: The cone trajectory (docs/design.md, "Lens sweep"): the target circles the home optical axis at
@@ -104,10 +106,12 @@ class TrackingConfig:
         rendered through :class:`gimbal_lab.widefield.WideFieldRenderer`, its focal length set by
         ``hfov_rad`` (f = (W/2)/(hfov/2), the equidistant rule of
         :meth:`KannalaBrandt.equidistant_for_fov`).
-    trajectory : {"circular", "diagonal", "cone"}
+    trajectory : {"circular", "diagonal", "cone", "manoeuvring"}
         The paper's two motions, or the lens sweep's cone: a circle about the home optical axis
         at :data:`CONE_RANGE_M` from the home camera, :data:`CONE_FIELD_FRACTION` of the half
-        horizontal field off the axis (so it reaches as far into the field for every lens).
+        horizontal field off the axis (so it reaches as far into the field for every lens); or
+        the occlusion study's manoeuvring target
+        (:class:`gimbal_lab.trajectories.ManoeuvringTarget`, its plan drawn from ``seed``).
     mode : {"passive", "active"}
     revolutions : float
         Number of periods simulated (> 0). The study: 2, the first being acquisition.
@@ -135,12 +139,20 @@ class TrackingConfig:
         none. The study uses sub-pixel refinement, the common choice for pose estimation: on
         static rendered poses it halves the translation error of "none" at 3 m (0.48 % vs
         0.79 % of distance, notebook 05). Notebook 08 also runs "none".
-    outer_loop : {"paper", "predictive"}
+    outer_loop : {"paper", "predictive", "filter"}
         Active mode's outer loop: "paper" is the paper's PI law on the pixel error with
         Ziegler–Nichols gains from the outer loop's own plant
-        (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`); "predictive" filters the line of
-        sight with priors from a stated target class and feeds its rate forward
-        (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension).
+        (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`); it holds the joints when the
+        target is lost. "predictive" filters the line of sight with priors from a stated target
+        class and feeds its rate forward (:class:`gimbal_lab.tracking.PredictiveLoop`, an
+        extension). "filter" points where a filter on the target's world position predicts it,
+        coasting through misses (:class:`gimbal_lab.tracking.FilterPointing`, the occlusion
+        study).
+    target_filter : {"cv", "ca", "imm"}
+        The filter of ``outer_loop="filter"`` (:mod:`gimbal_lab.filters`, default parameters):
+        constant velocity, constant acceleration, or the IMM of both with a coordinated turn.
+    occluders : tuple of gimbal_lab.scene.Occluder
+        Boxes in the world that can hide the target (the occlusion study); none by default.
     lens_strategy : {"ignore", "undistort", "rectify"}
         How the estimator treats the lens (docs/design.md, "Lens sweep"). "ignore" (the paper):
         it assumes a pinhole camera whatever the lens. "undistort": it knows the lens and
@@ -199,6 +211,8 @@ class TrackingConfig:
     sphere_method: str = "circle"
     aruco_refinement: str = "subpix"
     outer_loop: str = "paper"
+    target_filter: str = "imm"
+    occluders: tuple = ()
     lens_strategy: str = "ignore"
     sphere_radius_m: float = 0.10
     marker_length_m: float = 0.30
@@ -222,6 +236,16 @@ class TrackingConfig:
         _choice("sphere_method", self.sphere_method, _SPHERE_METHODS)
         _choice("aruco_refinement", self.aruco_refinement, _REFINEMENTS)
         _choice("outer_loop", self.outer_loop, _OUTER_LOOPS)
+        _choice("target_filter", self.target_filter, _TARGET_FILTERS)
+        from .scene import Occluder
+
+        if isinstance(self.occluders, Occluder) or isinstance(self.occluders, (str, bytes, dict)):
+            raise TypeError("occluders must be a sequence of Occluder objects")
+        set_occluders = tuple(Occluder(**o) if isinstance(o, dict) else o for o in self.occluders)
+        for occluder in set_occluders:
+            if not isinstance(occluder, Occluder):
+                raise TypeError(f"occluders must be Occluder objects, got {type(occluder).__name__}")
+        object.__setattr__(self, "occluders", set_occluders)
         _choice("blur", self.blur, _BLURS)
         _choice("motion", self.motion, _MOTIONS)
         _choice("passive_mount", self.passive_mount, _PASSIVE_MOUNTS)
@@ -274,8 +298,11 @@ class TrackingConfig:
         if self.mode == "active" and self.passive_mount != "stabilised":
             raise ValueError(f"passive_mount={self.passive_mount!r} needs mode='passive' (the active camera is "
                              "always on the gimbal)")
-        if self.motion != "static" and self.mode == "active" and self.outer_loop == "predictive":
-            raise ValueError("outer_loop='predictive' assumes a still body; use motion='static' or outer_loop='paper'")
+        if self.motion != "static" and self.mode == "active" and self.outer_loop != "paper":
+            raise ValueError(f"outer_loop={self.outer_loop!r} assumes a still body; use motion='static' or "
+                             "outer_loop='paper'")
+        if self.occluders and self.exposure_s > 0 and self.blur == "fast":
+            raise ValueError("occluders need blur='subframes': the fast blur cannot put the target behind them")
         set_("seed", _number("seed", self.seed, low=0, high=2**63 - 1, integer=True))
 
     # Derived quantities -------------------------------------------------------------------
@@ -315,6 +342,8 @@ class TrackingConfig:
 
     @property
     def path(self) -> Trajectory:
+        if self.trajectory == "manoeuvring":
+            return _manoeuvring_path(self.seed, self.revolutions * self.period_s + self.period_s)
         if self.trajectory != "cone":
             return Trajectory(self.trajectory, period_s=self.period_s)
         half_angle = CONE_FIELD_FRACTION * 0.5 * self.hfov_rad
@@ -356,6 +385,7 @@ class TrackingConfig:
 
     def to_dict(self) -> dict:
         out = asdict(self)
+        out["occluders"] = [asdict(o) for o in self.occluders]
         if isinstance(self.distortion, BrownConrady):
             out["distortion"] = {k: float(v) for k, v in asdict(self.distortion).items()}
         elif isinstance(self.distortion, KannalaBrandt):
@@ -441,6 +471,13 @@ FRAME_COLUMNS = {
                                                 "starts (gimbal_lab.mount); with q0 it re-renders a sharp frame",
     "streak_px": "the target's blur streak: length of the true centre's image path over the exposure, px",
     "cam_turn_deg": "largest rotation of the camera within the exposure, degrees (pointing jitter)",
+    "hidden": "the line of sight to the target's centre passes through an occluder (truth)",
+    "visible_fraction": "fraction of the target's outline seen past the occluders (truth; 1 without occluders)",
+    "partial": "sphere: the detected silhouette is cut (gimbal_lab.detection.SphereDetection.partial)",
+    "filter_x_m, filter_y_m, filter_z_m": "outer_loop='filter': the filter's predicted target centre at the truth "
+                                          "instant, world frame (NaN otherwise or before the track starts)",
+    "filter_nees": "normalised error squared of that prediction against the truth (χ² with 3 degrees of freedom "
+                   "for a consistent filter)",
 }
 
 
@@ -463,6 +500,7 @@ class _Estimator:
         from . import detection
 
         self.config = config
+        self.partial = False
         lens = config.lens
         self.rectifier = detection.Rectifier(config.intrinsics, lens) if config.lens_strategy == "rectify" else None
         self.intrinsics = self.rectifier.out_intrinsics if self.rectifier is not None else config.intrinsics
@@ -487,14 +525,18 @@ class _Estimator:
         return uv if self.rectifier is None else self.rectifier.to_source_px(uv).reshape(2)
 
     def __call__(self, image):
+        """(pixel centre, centre in the camera frame, alt) of one frame; ``partial`` says whether
+        the sphere's silhouette was cut."""
         from .camera import UndistortionError
 
+        self.partial = False
         if self.rectifier is not None:
             image = self.rectifier.rectify(image)
         if self.config.target == "sphere":
             det = self.detector.detect(image)
             if det is None:
                 return None, None, None
+            self.partial = bool(getattr(det, "partial", False))
 
             def locate(method):
                 try:
@@ -509,6 +551,15 @@ class _Estimator:
         if pose is None:
             return None, None, None
         return self._centre(pose.center_px), np.asarray(pose.t_cam_marker_m, float), None
+
+
+@functools.lru_cache(maxsize=8)
+def _manoeuvring_path(seed: int, duration_s: float):
+    """The manoeuvring target of a run (its plan drawn once per seed and length)."""
+    from .trajectories import ManoeuvringTarget
+
+    plan_seed = int(np.random.SeedSequence([seed, 3]).generate_state(1)[0])
+    return ManoeuvringTarget(seed=plan_seed, duration_s=duration_s)
 
 
 @functools.lru_cache(maxsize=1)
@@ -526,10 +577,11 @@ def _home_camera_offset_m() -> np.ndarray:
 BODY_POSITION_M = (0.0, 0.0, 2.0)
 
 
-def world_T_base(kinematics) -> np.ndarray:
-    """4 × 4 ``T_world_base`` of the study: the body at :data:`BODY_POSITION_M`, axes = world's."""
+def world_T_base(kinematics, altitude_m: float = BODY_POSITION_M[2]) -> np.ndarray:
+    """4 × 4 ``T_world_base`` of the study: the body still at :data:`BODY_POSITION_M` (at ``altitude_m``
+    above the ground), axes = world's."""
     T_world_body = np.eye(4)
-    T_world_body[:3, 3] = BODY_POSITION_M
+    T_world_body[:3, 3] = BODY_POSITION_M[:2] + (altitude_m,)
     return T_world_body @ kinematics.T_body_base
 
 
@@ -540,7 +592,7 @@ PLATE_TO_MARKER = 0.40 / 0.30
 def renderer_key(config: TrackingConfig) -> tuple:
     """What a renderer depends on: two configs with equal keys can share one (:func:`make_renderer`)."""
     return (config.target, config.lens, config.width, config.height, config.hfov_rad, config.sphere_radius_m,
-            config.marker_length_m)
+            config.marker_length_m, config.occluders)
 
 
 def make_renderer(config: TrackingConfig):
@@ -550,7 +602,7 @@ def make_renderer(config: TrackingConfig):
     remapped to the lens); any other lens a :class:`gimbal_lab.scene.SceneRenderer`.
     """
     sizes = dict(sphere_radius_m=config.sphere_radius_m, marker_length_m=config.marker_length_m,
-                 plate_size_m=PLATE_TO_MARKER * config.marker_length_m)
+                 plate_size_m=PLATE_TO_MARKER * config.marker_length_m, occluders=config.occluders)
     if isinstance(config.lens, KannalaBrandt):
         from .widefield import WideFieldRenderer
 
@@ -560,17 +612,96 @@ def make_renderer(config: TrackingConfig):
     return SceneRenderer(config.intrinsics, distortion=config.lens, target=config.target, **sizes)
 
 
+class Measurement(NamedTuple):
+    """What the estimator made of one frame, as it reaches the outer loop ``latency_frames`` later."""
+
+    frame: int
+    t_s: float  # the frame's truth instant (mid-exposure)
+    uv_px: np.ndarray | None  # detected centre, px (None: not detected)
+    q_rad: np.ndarray  # joint angles at that instant
+    range_m: float | None  # the estimator's distance to the target
+    p_cam_m: np.ndarray | None  # the estimated target centre, camera optical frame
+    T_world_cam: np.ndarray  # the camera's pose at that instant
+
+
+class _PaperLoop:
+    """The paper's image loop as an outer-loop part: a new rate reference per measurement, held
+    between measurements; zero rate (hold) while the target is not detected."""
+
+    def __init__(self, image_loop, kin, fps: float):
+        self.image_loop, self.kin, self.dt_s = image_loop, kin, 1.0 / fps
+        self.rate = np.zeros(3)
+
+    def observe(self, m: Measurement, q0) -> None:
+        J_cam = self.kin.angular_jacobian(q0, frame="camera", check_limits=False)
+        self.rate = np.asarray(self.image_loop.update(m.uv_px, self.dt_s, J_cam, q0), float)
+
+    def command(self, t_s: float, q0) -> np.ndarray:
+        return self.rate
+
+    def prediction(self, t_s: float):
+        return None
+
+
+class _PredictiveLoop:
+    """The line-of-sight predictive loop as an outer-loop part."""
+
+    def __init__(self, loop):
+        self.loop = loop
+
+    def observe(self, m: Measurement, q0) -> None:
+        self.loop.observe(m.t_s, m.uv_px, m.q_rad, range_m=m.range_m)
+
+    def command(self, t_s: float, q0) -> np.ndarray:
+        return self.loop.command(t_s, q0)
+
+    def prediction(self, t_s: float):
+        return None
+
+
+class _FilterLoop:
+    """Pointing driven by a filter on the target's world position, as an outer-loop part."""
+
+    def __init__(self, pointing):
+        self.pointing = pointing
+
+    def observe(self, m: Measurement, q0) -> None:
+        self.pointing.observe(m.t_s, m.p_cam_m, m.T_world_cam)
+
+    def command(self, t_s: float, q0) -> np.ndarray:
+        return self.pointing.command(t_s, q0)
+
+    def prediction(self, t_s: float):
+        return self.pointing.prediction(t_s)
+
+
+def make_target_filter(name: str):
+    """The target filter ``name`` ("cv", "ca" or "imm") with its default parameters."""
+    from . import filters
+
+    _choice("target_filter", name, _TARGET_FILTERS)
+    return {"cv": filters.ConstantVelocity, "ca": filters.ConstantAcceleration, "imm": filters.IMM}[name]()
+
+
 def _outer_loop(config: TrackingConfig, kin, pixel_lens):
-    """The active mode's outer loop object, or None for passive."""
+    """The active mode's outer-loop part (``observe(measurement, q0)``, ``command(t_s, q0)``,
+    ``prediction(t_s)``), or None for passive (zero rate references)."""
     if config.mode != "active":
         return None
     if config.outer_loop == "paper":
         from .control import ImageLoop
 
-        return ImageLoop.ziegler_nichols(config.intrinsics, config.fps, config.latency_frames, distortion=pixel_lens)
-    from .tracking import PredictiveLoop
+        image_loop = ImageLoop.ziegler_nichols(config.intrinsics, config.fps, config.latency_frames,
+                                               distortion=pixel_lens)
+        return _PaperLoop(image_loop, kin, config.fps)
+    if config.outer_loop == "predictive":
+        from .tracking import PredictiveLoop
 
-    return PredictiveLoop(config.intrinsics, kin, distortion=pixel_lens)
+        return _PredictiveLoop(PredictiveLoop(config.intrinsics, kin, distortion=pixel_lens))
+    from .tracking import FilterPointing
+
+    return _FilterLoop(FilterPointing(kin, world_T_base(kin, config.altitude_m), make_target_filter(config.target_filter),
+                                      focal_px=config.intrinsics.fx, radius_m=config.sphere_radius_m))
 
 
 _COLUMNS = [
@@ -584,6 +715,7 @@ _COLUMNS = [
     "alt_est_cam_x_m", "alt_est_cam_y_m", "alt_est_cam_z_m", "alt_d_est_m", "alt_error_m", "alt_abs_error_m",
     "q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad", "w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s",
     "streak_px", "cam_turn_deg",
+    "hidden", "visible_fraction", "partial", "filter_x_m", "filter_y_m", "filter_z_m", "filter_nees",
 ]
 
 
@@ -605,6 +737,25 @@ def truth_time(config: TrackingConfig, t_s: float, camera_fn, target_fn) -> floa
         v = project(p, K, lens)[0, 1] if p[2] > 0 else 0.5 * (rows - 1)
         t = t_s + min(max(v, 0.0), rows - 1) * config.readout_s / rows + 0.5 * config.exposure_s
     return t
+
+
+def _target_visibility(config: TrackingConfig, camera_m, T_world_target) -> np.ndarray:
+    """Which of the target's centre and outline points the camera sees past the occluders.
+
+    Returns
+    -------
+    ndarray of bool, shape (1 + n,)
+        The centre first, then the outline: 32 points of the sphere's silhouette circle
+        (:func:`gimbal_lab.scene.sphere_rim_points`) or the marker's 4 corners.
+    """
+    from .scene import marker_corners, points_visible, sphere_rim_points
+
+    centre = T_world_target[:3, 3]
+    if config.target == "sphere":
+        outline = sphere_rim_points(camera_m, centre, config.sphere_radius_m)
+    else:
+        outline = marker_corners(T_world_target, config.marker_length_m)
+    return points_visible(config.occluders, camera_m, np.vstack([centre, outline]))
 
 
 def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
@@ -725,7 +876,6 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     uint8). ``timing`` (optional) accumulates ``render_s`` and ``detect_s``.
     :func:`gimbal_lab.show.replay` runs it again to show a blurred run's frames exactly.
     """
-    from .control import ImageLoop
     from .kinematics import GimbalKinematics
     from .mount import GimbalMount
     from .scene import add_sensor_noise
@@ -747,8 +897,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     mount = GimbalMount(kin, body, config.mount, dt_s, n_steps, config.gyro_noise_rad_s_rthz, gyro_rng)
     pixel_lens = lens if config.calibrated else None  # the lens the outer loop knows
     outer = _outer_loop(config, kin, pixel_lens)
-    image_loop = outer if isinstance(outer, ImageLoop) else None
-    predictive = None if (outer is None or image_loop is not None) else outer
+    occluders = config.occluders
 
     pending: deque = deque()
     rate_ref = np.zeros(3)
@@ -762,15 +911,11 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     def steer(k, q0):
         """The outer loop at frame k: the measurement of frame k − latency arrives."""
         nonlocal rate_ref
-        if pending and pending[0][0] <= k - config.latency_frames:
-            _, t_capture, measured, q_capture, range_m = pending.popleft()
-            if image_loop is not None:
-                J_cam = kin.angular_jacobian(q0, frame="camera", check_limits=False)
-                rate_ref = np.asarray(image_loop.update(measured, 1.0 / config.fps, J_cam, q0), float)
-            elif predictive is not None:
-                predictive.observe(t_capture, measured, q_capture, range_m=range_m)
-        if predictive is not None:
-            rate_ref = predictive.command(k / config.fps, q0)
+        if outer is None:
+            return
+        if pending and pending[0].frame <= k - config.latency_frames:
+            outer.observe(pending.popleft(), q0)
+        rate_ref = outer.command(k / config.fps, q0)
 
     for k in range(n_frames):
         t_s = k / config.fps
@@ -789,6 +934,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
         image = add_sensor_noise(image, config.noise_std, rng)
         t1 = time.perf_counter()
         uv, p_cam, p_cam_alt = estimate(image)
+        partial = estimate.partial
         timing["detect_s"] += time.perf_counter() - t1
         timing["render_s"] += t1 - t0
         streak_px, cam_turn_rad = image_motion(config, t_mid, camera_fn)
@@ -807,15 +953,29 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
         p_alt = R @ p_cam_alt + c
         d_alt = float(np.linalg.norm(p_cam_alt))
         u, v = (uv if uv is not None else (math.nan, math.nan))
+        if occluders:
+            visible = _target_visibility(config, c, T_world_target)
+            hidden, visible_fraction = not visible[0], float(np.mean(visible[1:]))
+        else:
+            hidden, visible_fraction = False, 1.0
+        predicted = outer.prediction(t_mid) if outer is not None else None
+        if predicted is None:
+            p_filter, filter_nees = np.full(3, np.nan), math.nan
+        else:
+            p_filter = predicted[0]
+            e = p_true - p_filter
+            filter_nees = float(e @ np.linalg.solve(predicted[1], e))
         row = (
             (k, t_s, t_mid, int(t_mid // config.period_s), detected, *p_true, *p_est, *p_cam_true, *p_cam_est,
              d_true, d_est, d_est - d_true, abs(d_est - d_true), u, v, math.hypot(u - K.cx, v - K.cy),
              *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
              alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true),
-             *q0, *w0, streak_px, math.degrees(cam_turn_rad))
+             *q0, *w0, streak_px, math.degrees(cam_turn_rad),
+             hidden, visible_fraction, partial, *p_filter, filter_nees)
         )
         # the measurement of frame k reaches the outer loop latency_frames frames later
-        pending.append((k, t_mid, uv, q, d_est if detected else None))
+        pending.append(Measurement(k, t_mid, uv, q, d_est if detected else None, p_cam if detected else None,
+                                   T_world_cam))
         if not run_first:
             steer(k, q0)
             mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)

@@ -15,6 +15,13 @@ angles with the line-of-sight rate fed forward:
 
 When detections stop, the filter coasts on its velocity for ``coast_s`` and then holds.
 
+:class:`FilterPointing` is the same pointing law driven by a filter on the target's 3-D world
+position (:mod:`gimbal_lab.filters`: constant velocity, constant acceleration or IMM), for the
+occlusion study (docs/design.md, "Occlusion and manoeuvres"): each sphere fix (the circle
+method's camera-frame position) is fused with the covariance of the detector's stated pixel
+errors (:func:`circle_measurement_covariance`), and the joints follow the filter's prediction,
+coasting through missed frames.
+
 Notes
 -----
 Beyond the paper: its future work asks for a Bayesian filter to keep tracking through
@@ -28,8 +35,10 @@ import math
 import numpy as np
 
 from .camera import BrownConrady, Intrinsics, backproject
+from .kinematics import _check_rigid
 
-__all__ = ["LineOfSightFilter", "PredictiveLoop", "MAX_ANGULAR_ACCEL_RAD_S2", "MANOEUVRE_TIME_S"]
+__all__ = ["LineOfSightFilter", "PredictiveLoop", "MAX_ANGULAR_ACCEL_RAD_S2", "MANOEUVRE_TIME_S",
+           "FilterPointing", "circle_measurement_covariance", "CENTRE_STD_PX", "RADIUS_STD_PX", "FILTER_COAST_S"]
 
 
 #: The target class the predictive loop is built for, stated before any run and independent of
@@ -225,3 +234,308 @@ class PredictiveLoop:
 
     def _pointing(self, azimuth: float, elevation: float) -> np.ndarray:
         return np.asarray(self.kinematics.look_at(self._pivot + self.range_m * _direction(azimuth, elevation)), float)
+
+
+# ----------------------------------------------------------------------------------------------
+# pointing driven by a world-position target filter (occlusion study)
+
+#: Standard deviation of the detected circle's centre, px, per image axis: the detector's stated
+#: accuracy, fixed before any run. The minimum enclosing circle is set by two or three outline
+#: points, each a boundary pixel's centre, i.e. quantised to the pixel grid (±0.5 px); half a
+#: pixel per axis covers that quantisation. Not tuned on tracking results.
+CENTRE_STD_PX = 0.5
+#: Standard deviation of the detected circle's radius, px, by the same argument as
+#: :data:`CENTRE_STD_PX` (the radius is set by the same quantised outline points).
+RADIUS_STD_PX = 0.5
+#: How long :class:`FilterPointing` follows a filter's prediction after its last accepted
+#: measurement, s: the occlusion study's longest occlusion (1.0 s, docs/design.md) plus 0.5 s for
+#: re-acquisition (the filter's gate may reject the first fixes after a long coast until the track
+#: restarts: 10 frames, 0.33 s, at the filters' default ``restart_after``).
+FILTER_COAST_S = 1.5
+#: Step of the finite difference that turns the predicted velocity into joint rates, s (the
+#: truncation error is about ½ q̈ h: under 1e-3 rad/s for joint accelerations under 2 rad/s²).
+_FEED_FORWARD_STEP_S = 1e-3
+
+
+def _check_real(name: str, value, *, low=None, low_open=False) -> float:
+    """Return ``float(value)`` or raise naming ``name`` and the allowed range (as in gimbal_lab.control)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    rng = "finite" if low is None else (f"> {low}" if low_open else f">= {low}")
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be a finite number ({rng}), got {value!r}")
+    if low is not None and (v <= low if low_open else v < low):
+        raise ValueError(f"{name} must be {rng}, got {value!r}")
+    return v
+
+
+def _check_rotation(name: str, R) -> np.ndarray:
+    """Return ``R`` as a float (3, 3) rotation or raise ValueError (the tolerance of _check_rigid)."""
+    arr = np.asarray(R, dtype=float)
+    if arr.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 rotation matrix, got shape {arr.shape}")
+    T = np.eye(4)
+    T[:3, :3] = arr
+    try:
+        _check_rigid(name, T)
+    except ValueError:
+        raise ValueError(f"{name} must be a finite rotation matrix (orthonormal, det +1)") from None
+    return arr
+
+
+def circle_measurement_covariance(p_cam_m, R_world_cam, focal_px: float, radius_m: float,
+                                  centre_std_px: float = CENTRE_STD_PX,
+                                  radius_std_px: float = RADIUS_STD_PX) -> np.ndarray:
+    """World covariance of the circle method's sphere position, from its pixel errors.
+
+    The circle method (:func:`gimbal_lab.detection.locate_sphere_circle`) gives
+    p = z·(û, v̂, 1) with z = r·f/R_px and (û, v̂) = ((u − cx)/f, (v − cy)/f). With independent
+    errors of standard deviation σ_c on u and v and σ_R on R_px, linearised:
+
+        ∂p/∂u = (z/f)·e_x,   ∂p/∂v = (z/f)·e_y,   ∂p/∂R_px = −(z²/(r f))·(û, v̂, 1),
+
+    so R_cam = σ_lat² (e_x e_xᵀ + e_y e_yᵀ) + σ_z² (û, v̂, 1)(û, v̂, 1)ᵀ with the lateral
+    σ_lat = z·σ_c/f and the depth σ_z = z²·σ_R/(r·f). On the optical axis (û = v̂ = 0) this is
+    diag(σ_lat², σ_lat², σ_z²); off the axis the range error lies along the line of sight, not
+    along the optical axis (at 3 m it is about 30 times the lateral error, so the difference
+    matters). In the world, R = R_wc R_cam R_wcᵀ.
+
+    Parameters
+    ----------
+    p_cam_m : array_like, shape (3,)
+        The sphere centre in the camera optical frame (OpenCV axes), m, in front (z > 0).
+    R_world_cam : ndarray, shape (3, 3)
+        Rotation of the camera frame in the world (columns: the camera axes in world coordinates).
+    focal_px : float
+        Focal length f, px (> 0); the study camera has fx = fy.
+    radius_m : float
+        Sphere radius r, m (> 0).
+    centre_std_px, radius_std_px : float
+        σ_c and σ_R, px (> 0); default :data:`CENTRE_STD_PX`, :data:`RADIUS_STD_PX`.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Symmetric positive-definite covariance of the world position, m².
+
+    Notes
+    -----
+    Paper §3.2.1 (d = r·f/R, x₀ = d·K⁻¹(u, v, 1)ᵀ), first-order error propagation. Beyond the
+    paper: its §5 asks for a Bayesian filter, which needs this covariance.
+
+    Examples
+    --------
+    >>> R = circle_measurement_covariance([0.0, 0.0, 3.0], np.eye(3), 554.26, 0.1)
+    >>> np.round(np.sqrt(np.diag(R)), 4).tolist()  # 3 m · 0.5 px / f; 9 m² · 0.5 px / (0.1 m · f)
+    [0.0027, 0.0027, 0.0812]
+    """
+    p = np.asarray(p_cam_m, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"p_cam_m must be three finite numbers (camera frame, m), got {p_cam_m!r}")
+    if not p[2] > 0:
+        raise ValueError(f"p_cam_m must lie in front of the camera (z > 0), got z = {p[2]!r} m")
+    R_wc = _check_rotation("R_world_cam", R_world_cam)
+    f = _check_real("focal_px", focal_px, low=0.0, low_open=True)
+    r = _check_real("radius_m", radius_m, low=0.0, low_open=True)
+    s_c = _check_real("centre_std_px", centre_std_px, low=0.0, low_open=True)
+    s_r = _check_real("radius_std_px", radius_std_px, low=0.0, low_open=True)
+    z = float(p[2])
+    lateral_std_m = z * s_c / f
+    depth_std_m = z * z * s_r / (r * f)
+    ray = p / z  # (û, v̂, 1)
+    R_cam = lateral_std_m**2 * np.diag([1.0, 1.0, 0.0]) + depth_std_m**2 * np.outer(ray, ray)
+    R = R_wc @ R_cam @ R_wc.T
+    return 0.5 * (R + R.T)
+
+
+class FilterPointing:
+    """Outer loop: sphere fixes → world target filter → joint-rate references (yaw, roll, pitch).
+
+    Each fix (the sphere centre in the camera frame of the frame it was found on) is mapped to
+    the world with that frame's camera pose and fused into ``filter`` with the covariance of the
+    detector's pixel errors (:func:`circle_measurement_covariance`); a frame without a fix is a
+    missed frame. :meth:`command` predicts the target's world position p and velocity v to the
+    current time, maps them to the gimbal base and returns
+
+        q̇_ref = (look_at(p_b + v_b·h) − look_at(p_b))/h + kp·(q_des − q),   q_des = look_at(p_b),
+
+    with h = 1 ms, scaled down as a whole (direction kept) so that no joint exceeds
+    ``max_rate_rad_s``. It returns zeros (the joints hold, as the paper's loop does when it loses
+    the target) before the first fix, once the last accepted fix is more than ``coast_s`` old, and
+    when the predicted point (or the point h ahead) is out of the gimbal's reach
+    (:meth:`gimbal_lab.kinematics.GimbalKinematics.look_at` raises ValueError: more than 45°
+    above the horizon, behind the yaw limits, or inside the camera's offset).
+
+    Parameters
+    ----------
+    kinematics : GimbalKinematics
+        Provides ``look_at`` (pointing angles in the base frame).
+    T_world_base : ndarray, shape (4, 4)
+        Pose of the gimbal base in the world (constant: the body is static in this study; see
+        :func:`gimbal_lab.simulation.world_T_base`).
+    filter : ConstantVelocity, ConstantAcceleration or IMM
+        A target filter with the interface of :mod:`gimbal_lab.filters` (``update``,
+        ``predict``, ``initialised``, ``t_s``); it is used as given, not copied.
+    focal_px : float
+        Focal length of the camera, px (> 0).
+    radius_m : float
+        Radius of the sphere, m (> 0).
+    kp_per_s : float
+        Gain on the joint-angle error, 1/s (> 0); as :class:`PredictiveLoop`.
+    max_rate_rad_s : float
+        Largest joint-rate reference, rad/s (> 0). The default, 3 rad/s, is about three times
+        the study circle's largest line-of-sight rate (π m/s at about 3.2 m: ≈ 1 rad/s).
+    coast_s : float
+        How long the prediction is followed after the last accepted fix, s (>= 0); default
+        :data:`FILTER_COAST_S`.
+    centre_std_px, radius_std_px : float
+        The detector's error model, px (> 0); default :data:`CENTRE_STD_PX`, :data:`RADIUS_STD_PX`.
+
+    Attributes
+    ----------
+    n_accepted, n_rejected, n_missed : int
+        Fixes the filter accepted (a track start or restart included), fixes its gate rejected,
+        and frames without a fix.
+
+    Notes
+    -----
+    Beyond the paper: its §5 asks for a Bayesian filter to keep tracking through occlusions;
+    docs/design.md, "Occlusion and manoeuvres" (filter-driven pointing with CV, CA and IMM
+    filters). The pointing law is :class:`PredictiveLoop`'s.
+
+    Examples
+    --------
+    >>> from gimbal_lab.filters import ConstantVelocity
+    >>> from gimbal_lab.kinematics import GimbalKinematics
+    >>> kin = GimbalKinematics.default()
+    >>> loop = FilterPointing(kin, np.eye(4), ConstantVelocity(), focal_px=554.26, radius_m=0.1)
+    >>> T_world_cam = kin.forward(np.zeros(3))  # world = base here; camera at home, looking along +x
+    >>> loop.observe(0.0, [0.0, 0.0, 3.0], T_world_cam)
+    True
+    >>> bool(np.allclose(loop.command(0.01, np.zeros(3)), 0.0, atol=1e-9))  # already on target
+    True
+    """
+
+    def __init__(self, kinematics, T_world_base, filter, focal_px: float, radius_m: float,
+                 kp_per_s: float = 15.0, max_rate_rad_s: float = 3.0, coast_s: float = FILTER_COAST_S,
+                 centre_std_px: float = CENTRE_STD_PX, radius_std_px: float = RADIUS_STD_PX):
+        if not callable(getattr(kinematics, "look_at", None)):
+            raise TypeError(f"kinematics must provide look_at (a GimbalKinematics), got {type(kinematics).__name__}")
+        missing = [name for name in ("update", "predict", "initialised", "t_s") if not hasattr(filter, name)]
+        if missing:
+            raise TypeError(f"filter must have the interface of gimbal_lab.filters (missing {', '.join(missing)}), "
+                            f"got {type(filter).__name__}")
+        self.kinematics = kinematics
+        self.T_world_base = _check_rigid("T_world_base", T_world_base)
+        T_base_world = np.eye(4)
+        T_base_world[:3, :3] = self.T_world_base[:3, :3].T
+        T_base_world[:3, 3] = -self.T_world_base[:3, :3].T @ self.T_world_base[:3, 3]
+        self._T_base_world = T_base_world
+        self.filter = filter
+        self.focal_px = _check_real("focal_px", focal_px, low=0.0, low_open=True)
+        self.radius_m = _check_real("radius_m", radius_m, low=0.0, low_open=True)
+        self.kp_per_s = _check_real("kp_per_s", kp_per_s, low=0.0, low_open=True)
+        self.max_rate_rad_s = _check_real("max_rate_rad_s", max_rate_rad_s, low=0.0, low_open=True)
+        self.coast_s = _check_real("coast_s", coast_s, low=0.0)
+        self.centre_std_px = _check_real("centre_std_px", centre_std_px, low=0.0, low_open=True)
+        self.radius_std_px = _check_real("radius_std_px", radius_std_px, low=0.0, low_open=True)
+        self.n_accepted = 0
+        self.n_rejected = 0
+        self.n_missed = 0
+
+    def measurement_covariance(self, p_cam_m, R_world_cam) -> np.ndarray:
+        """World covariance of a fix at ``p_cam_m`` (camera frame, m), m², shape (3, 3).
+
+        :func:`circle_measurement_covariance` with this loop's focal length, sphere radius and
+        pixel errors.
+        """
+        return circle_measurement_covariance(p_cam_m, R_world_cam, self.focal_px, self.radius_m,
+                                             self.centre_std_px, self.radius_std_px)
+
+    def observe(self, t_capture_s: float, p_cam_m, T_world_cam) -> bool:
+        """Fuse the fix made on the frame taken at ``t_capture_s``.
+
+        Parameters
+        ----------
+        t_capture_s : float
+            When the frame was taken, s (not before the filter's last accepted fix).
+        p_cam_m : array_like, shape (3,), or None
+            The sphere centre found on that frame, in its camera optical frame, m (the circle
+            method's estimate); None for a frame without a detection (a missed frame).
+        T_world_cam : ndarray, shape (4, 4)
+            The camera pose when the frame was taken (unused for a missed frame).
+
+        Returns
+        -------
+        bool
+            Whether the filter accepted the fix (False for a missed frame or a gated-out fix).
+        """
+        t = _check_real("t_capture_s", t_capture_s)
+        if p_cam_m is None:
+            self.filter.update(t, None)
+            self.n_missed += 1
+            return False
+        T = _check_rigid("T_world_cam", T_world_cam)
+        p_cam = np.asarray(p_cam_m, dtype=float)
+        R_world = self.measurement_covariance(p_cam, T[:3, :3])
+        p_world = T[:3, :3] @ p_cam + T[:3, 3]
+        accepted = bool(self.filter.update(t, p_world, R_world))
+        if accepted:
+            self.n_accepted += 1
+        else:
+            self.n_rejected += 1
+        return accepted
+
+    def prediction(self, t_s: float):
+        """The filter's estimate of the target at ``t_s``, for logging (estimate, NEES).
+
+        Returns
+        -------
+        tuple (ndarray, shape (3,), ndarray, shape (3, 3)) or None
+            World position, m, and its covariance, m²; None before the first fix. Given however
+            long the filter has coasted (``coast_s`` limits the pointing, not the estimate).
+        """
+        t = _check_real("t_s", t_s)
+        if not self.filter.initialised:
+            return None
+        mean, cov = self.filter.predict(t)
+        return np.array(mean[:3], dtype=float), np.array(cov[:3, :3], dtype=float)
+
+    def command(self, t_s: float, q_rad) -> np.ndarray:
+        """Joint-rate references (yaw, roll, pitch) at time ``t_s`` for joint angles ``q_rad``, rad/s.
+
+        Parameters
+        ----------
+        t_s : float
+            Current time, s (not before the filter's last accepted fix).
+        q_rad : array_like, shape (3,)
+            Current joint angles (yaw, roll, pitch), rad.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Rate references, rad/s, each within ±``max_rate_rad_s``; zeros when holding (before
+            the first fix, after ``coast_s`` without one, or when the prediction is out of reach).
+        """
+        t = _check_real("t_s", t_s)
+        q = np.asarray(q_rad, dtype=float)
+        if q.shape != (3,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q_rad must be three finite joint angles (yaw, roll, pitch), rad, got {q_rad!r}")
+        if not self.filter.initialised or t - self.filter.t_s > self.coast_s:
+            return np.zeros(3)
+        mean, _ = self.filter.predict(t)
+        R_bw, t_bw = self._T_base_world[:3, :3], self._T_base_world[:3, 3]
+        p_base = R_bw @ np.asarray(mean[:3], dtype=float) + t_bw
+        v_base = R_bw @ np.asarray(mean[3:6], dtype=float)
+        h = _FEED_FORWARD_STEP_S
+        try:
+            q_des = np.asarray(self.kinematics.look_at(p_base), dtype=float)
+            q_ahead = np.asarray(self.kinematics.look_at(p_base + v_base * h), dtype=float)
+        except ValueError:  # the prediction is out of the gimbal's reach: hold
+            return np.zeros(3)
+        rate = (q_ahead - q_des) / h + self.kp_per_s * (q_des - q)
+        peak = float(np.max(np.abs(rate)))
+        if peak > self.max_rate_rad_s:
+            rate *= self.max_rate_rad_s / peak
+        return rate

@@ -78,7 +78,7 @@ FACE_MARGIN_PX = 2
 #: inside the int16 range of OpenCV's fixed-point maps.
 MAX_FACE_PX = 4096
 _SCENE_KEYWORDS = (
-    "sphere_radius_m", "sphere_rgb", "marker_length_m", "plate_size_m", "marker_id", "noise_std", "seed"
+    "sphere_radius_m", "sphere_rgb", "marker_length_m", "plate_size_m", "marker_id", "noise_std", "seed", "occluders"
 )
 _LINEAR_LUT16 = (_DECODE_LUT * np.float32(_LINEAR_LEVELS) + np.float32(0.5)).astype(np.uint16)  # uint8 → linear·65535
 
