@@ -13,7 +13,7 @@ __all__ = ["STUDIES", "load"]
 
 #: Study name → module (``gimbal-lab run --list`` prints them).
 STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone",
-           "lens-sweep": "gimbal_lab.studies.lens_sweep"}
+           "lens-sweep": "gimbal_lab.studies.lens_sweep", "occlusion": "gimbal_lab.studies.occlusion"}
 
 
 def load(name: str):
