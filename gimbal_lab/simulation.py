@@ -536,7 +536,7 @@ class _Estimator:
             det = self.detector.detect(image)
             if det is None:
                 return None, None, None
-            self.partial = bool(getattr(det, "partial", False))
+            self.partial = det.partial
 
             def locate(method):
                 try:
