@@ -9,7 +9,8 @@ import tomllib
 from dataclasses import asdict, fields
 from pathlib import Path
 
-__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files"]
+__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files",
+           "write_study_report"]
 
 #: Environment variable that sets the extension studies' replicate count in their notebooks.
 REPLICATES_ENV = "GIMBAL_LAB_REPLICATES"
@@ -108,6 +109,39 @@ def write_report_files(folder, writers, study_name: str, params: StudyParams, n_
             "source_hash": source_hash(), "runs": n_runs}
     (folder / "study.json").write_text(json.dumps(meta, indent=1))
     return written + [folder / "study.json"]
+
+
+def write_study_report(folder, results, study: StudyParams, module, figures) -> list[Path]:
+    """An extension study's report in ``folder``: its tables, claims and figures; the paths written.
+
+    ``module`` is the study's module (``NAME``, ``replicate_table``, ``summary_table``,
+    ``check_hypotheses``, ``hypotheses_markdown``). Files: ``summary.csv``, ``replicates.parquet``
+    and ``.csv``, ``verdicts.csv``, ``claims.md``, ``study.json``, and in ``figures/`` what
+    ``figures(save, results, summary)`` draws (``save(fig, name)`` writes PNG and SVG) followed by
+    the forest plot of the verdicts, ``hypotheses_forest``.
+    """
+    from .. import plotting
+
+    plt = report_pyplot()
+    folder = Path(folder)
+    replicates = module.replicate_table(results)
+    summary = module.summary_table(replicates)
+    verdicts = module.check_hypotheses(replicates)
+    written = write_report_files(folder, (
+        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
+        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
+        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
+        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
+        ("claims.md", lambda p: p.write_text(module.hypotheses_markdown(verdicts, summary, study))),
+    ), module.NAME, study, len(results))
+
+    def save(fig, name):
+        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
+
+    figures(save, results, summary)
+    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
+    plt.close("all")
+    return written
 
 
 # ----------------------------------------------------------------------------------------------

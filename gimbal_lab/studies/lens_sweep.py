@@ -31,6 +31,7 @@ active's advantage over passive (paper pipeline) grows with distortion, within e
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -41,7 +42,7 @@ from .. import stats
 from ..camera import BrownConrady, Intrinsics, KannalaBrandt
 from ..simulation import TrackingConfig, _choice, _number
 from . import _params
-from ._params import StudyParams, report_pyplot, write_report_files
+from ._params import StudyParams
 from .paper import replicate_phase_s
 
 __all__ = [
@@ -409,29 +410,15 @@ def write_report(folder, results, study: LensSweepStudy) -> list[Path]:
     """
     from .. import plotting
 
-    plt = report_pyplot()
-    folder = Path(folder)
-    replicates = replicate_table(results)
-    summary = summary_table(replicates)
-    verdicts = check_hypotheses(replicates)
-    written = write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study))),
-    ), NAME, study, len(results))
-    figures = folder / "figures"
-    save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
-    save(plotting.study.plot_lens_sweep(summary, "mean_abs_error_m"), "lens_sweep_error")
-    save(plotting.study.plot_lens_sweep(summary, "detection_rate_pct"), "lens_sweep_detection")
-    save(plotting.study.plot_lens_costs(summary), "lens_sweep_cost")
-    for target in sorted({r.config.target for r in results}, key=TARGETS.index):
-        views = {lens: example_view(study, target, lens)[:2] for lens in _LENS}
-        save(plotting.study.plot_lens_views(views), f"example_views_{target}")
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+    def figures(save, results, summary):
+        save(plotting.study.plot_lens_sweep(summary, "mean_abs_error_m"), "lens_sweep_error")
+        save(plotting.study.plot_lens_sweep(summary, "detection_rate_pct"), "lens_sweep_detection")
+        save(plotting.study.plot_lens_costs(summary), "lens_sweep_cost")
+        for target in sorted({r.config.target for r in results}, key=TARGETS.index):
+            views = {lens: example_view(study, target, lens)[:2] for lens in _LENS}
+            save(plotting.study.plot_lens_views(views), f"example_views_{target}")
+
+    return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
 
 
 def run_study(study: LensSweepStudy, out, *, store=None, executor=None, jobs=None, progress=True,

@@ -25,6 +25,7 @@ than the others. Verdicts: :mod:`gimbal_lab.stats`, with δ's floor 1 mm for err
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
 from ..simulation import TrackingConfig, _choice, _number
 from . import _params
-from ._params import StudyParams, report_pyplot, write_report_files
+from ._params import StudyParams
 from .paper import replicate_phase_s
 
 __all__ = [
@@ -385,28 +386,14 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     """
     from .. import plotting
 
-    plt = report_pyplot()
-    folder = Path(folder)
-    replicates = replicate_table(results)
-    summary = summary_table(replicates)
-    verdicts = check_hypotheses(replicates)
-    written = write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study))),
-    ), NAME, study, len(results))
-    figures = folder / "figures"
-    save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
-    save(plotting.study.plot_mount_bars(summary), "mount_bars")
-    for target in sorted({r.config.target for r in results}, key=TARGETS.index):
-        runs = example_runs(results, target)
-        frame = int(round(runs[0].config.frames_per_revolution * 1.25))
-        save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+    def figures(save, results, summary):
+        save(plotting.study.plot_mount_bars(summary), "mount_bars")
+        for target in sorted({r.config.target for r in results}, key=TARGETS.index):
+            runs = example_runs(results, target)
+            frame = int(round(runs[0].config.frames_per_revolution * 1.25))
+            save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")
+
+    return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
 
 
 def run_study(study: MovingDroneStudy, out, *, store=None, executor=None, jobs=None, progress=True,

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -61,7 +62,7 @@ from .. import stats
 from ..scene import Occluder, points_visible
 from ..simulation import TrackingConfig, _choice, _number
 from . import _params
-from ._params import StudyParams, report_pyplot, write_report_files
+from ._params import StudyParams
 from .paper import replicate_phase_s
 
 __all__ = [
@@ -467,25 +468,11 @@ def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
     """
     from .. import plotting
 
-    plt = report_pyplot()
-    folder = Path(folder)
-    replicates = replicate_table(results)
-    summary = summary_table(replicates)
-    verdicts = check_hypotheses(replicates)
-    written = write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study))),
-    ), NAME, study, len(results))
-    figures = folder / "figures"
-    save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
-    save(plotting.occlusion.plot_occlusion_metrics(summary), "occlusion_metrics")
-    save(plotting.occlusion.plot_occlusion_timelines(results), "occlusion_timelines")
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+    def figures(save, results, summary):
+        save(plotting.occlusion.plot_occlusion_metrics(summary), "occlusion_metrics")
+        save(plotting.occlusion.plot_occlusion_timelines(results), "occlusion_timelines")
+
+    return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
 
 
 def run_study(study: OcclusionStudy, out, *, store=None, executor=None, jobs=None, progress=True,
