@@ -76,6 +76,9 @@ def test_config_from_toml_and_the_shipped_file_is_the_default(tmp_path):
     bad.write_text("[occlusion]\nreplicates = 3\nfilter = 'ekf'\n")
     with pytest.raises(ValueError, match="filter"):
         oc.OcclusionStudy.from_toml(bad)
+    other = Path(__file__).resolve().parents[1] / "data" / "studies" / "lens-sweep.toml"
+    with pytest.raises(ValueError, match=r"no \[occlusion\] table \(it holds \[lens-sweep\]\)"):
+        oc.OcclusionStudy.from_toml(other)
 
 
 # ----------------------------------------------------------------------------------------------

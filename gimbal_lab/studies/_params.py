@@ -66,6 +66,9 @@ class StudyParams:
             data = tomllib.loads(path.read_text())
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"study config {path} is not valid TOML: {exc}") from None
+        if cls._TABLE not in data and data and all(isinstance(v, dict) for v in data.values()):
+            raise ValueError(f"study config {path} has no [{cls._TABLE}] table (it holds "
+                             f"{', '.join(f'[{k}]' for k in data)}): is it another study's?")
         table = data.get(cls._TABLE, data)
         if not isinstance(table, dict):
             raise ValueError(f"study config {path}: [{cls._TABLE}] must be a table")
