@@ -773,6 +773,8 @@ def _arc_mask(points, center_px, radius_px: float) -> np.ndarray:
     # relative to the circle's centre: the conic fits stay well conditioned in pixel units
     offsets = np.asarray(points, dtype=float).reshape(-1, 2) - np.asarray(center_px, dtype=float).reshape(2)
     on_arc = np.hypot(offsets[:, 0], offsets[:, 1]) >= float(radius_px) - ARC_TOLERANCE_PX
+    if on_arc.all():  # the whole outline is on its circle: nothing can grow (and no fit to pay for)
+        return on_arc
     for _ in range(_ARC_FITS):
         conic = fit_conic(offsets[on_arc])
         if conic is None:
