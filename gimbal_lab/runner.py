@@ -255,7 +255,18 @@ def _single_threaded_children():
             os.environ.pop(name, None)
 
 
+def _check_spawnable_main() -> None:
+    """Spawned workers re-import the parent's main script by its path; one read from standard input
+    (``python -``) or otherwise not on disk cannot be, and every worker would die at start."""
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    if path is not None and not os.path.exists(path):
+        raise RuntimeError(f"the local pool's workers must re-import the main script, {path!r}, which is not a file "
+                           "(a script piped to `python -`?): save the script to a file and run that, or call "
+                           "run(..., jobs=1) to run in this process")
+
+
 def _local_pool(jobs: int) -> ProcessPoolExecutor:
+    _check_spawnable_main()
     return ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_local_worker_init,
                                initargs=(os.getpid(),))
 

@@ -770,3 +770,14 @@ def test_ctrl_c_while_a_run_is_being_stored_counts_it_exactly_when_it_is_whole(t
     expected = 2 if lands == "after the files" else 1
     assert (caught.value.kept, caught.value.total) == (expected, 2)
     assert len(list((tmp_path / "s" / "runs").glob("*.json"))) == expected
+
+
+def test_a_script_piped_to_python_is_refused_before_any_worker_dies():
+    """Spawned workers re-import the main script by its path; ``python -`` has none on disk."""
+    script = ("from gimbal_lab.runner import run\n"
+              "from gimbal_lab.simulation import TrackingConfig\n"
+              "run([TrackingConfig(revolutions=0.1, seed=s) for s in range(2)], jobs=2, progress=False)\n")
+    done = subprocess.run([sys.executable, "-"], input=script, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert "not a file" in done.stderr and "jobs=1" in done.stderr
+    assert "worker process died" not in done.stderr
