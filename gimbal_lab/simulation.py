@@ -624,7 +624,15 @@ class Measurement(NamedTuple):
     T_world_cam: np.ndarray  # the camera's pose at that instant
 
 
-class _PaperLoop:
+class _OuterLoopPart:
+    """What every outer-loop part offers: ``observe(measurement, q0)``, ``command(t_s, q0)`` and
+    ``prediction(t_s)``, the target estimate it logs (None: it keeps none)."""
+
+    def prediction(self, t_s: float):
+        return None
+
+
+class _PaperLoop(_OuterLoopPart):
     """The paper's image loop as an outer-loop part: a new rate reference per measurement, held
     between measurements; zero rate (hold) while the target is not detected."""
 
@@ -639,11 +647,8 @@ class _PaperLoop:
     def command(self, t_s: float, q0) -> np.ndarray:
         return self.rate
 
-    def prediction(self, t_s: float):
-        return None
 
-
-class _PredictiveLoop:
+class _PredictiveLoop(_OuterLoopPart):
     """The line-of-sight predictive loop as an outer-loop part."""
 
     def __init__(self, loop):
@@ -655,11 +660,8 @@ class _PredictiveLoop:
     def command(self, t_s: float, q0) -> np.ndarray:
         return self.loop.command(t_s, q0)
 
-    def prediction(self, t_s: float):
-        return None
 
-
-class _FilterLoop:
+class _FilterLoop(_OuterLoopPart):
     """Pointing driven by a filter on the target's world position, as an outer-loop part."""
 
     def __init__(self, pointing):

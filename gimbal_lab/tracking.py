@@ -35,6 +35,7 @@ import math
 import numpy as np
 
 from .camera import BrownConrady, Intrinsics, backproject
+from .control import _check_real
 from .kinematics import _check_rigid
 
 __all__ = ["LineOfSightFilter", "PredictiveLoop", "MAX_ANGULAR_ACCEL_RAD_S2", "MANOEUVRE_TIME_S",
@@ -255,19 +256,6 @@ FILTER_COAST_S = 1.5
 #: Step of the finite difference that turns the predicted velocity into joint rates, s (the
 #: truncation error is about ½ q̈ h: under 1e-3 rad/s for joint accelerations under 2 rad/s²).
 _FEED_FORWARD_STEP_S = 1e-3
-
-
-def _check_real(name: str, value, *, low=None, low_open=False) -> float:
-    """Return ``float(value)`` or raise naming ``name`` and the allowed range (as in gimbal_lab.control)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
-    rng = "finite" if low is None else (f"> {low}" if low_open else f">= {low}")
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite number ({rng}), got {value!r}")
-    if low is not None and (v <= low if low_open else v < low):
-        raise ValueError(f"{name} must be {rng}, got {value!r}")
-    return v
 
 
 def _check_rotation(name: str, R) -> np.ndarray:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 __all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files",
@@ -33,12 +33,40 @@ def replicates_from_env(default: int = 10) -> int:
     return value
 
 
+@dataclass(frozen=True)
 class StudyParams:
-    """Mixin for a study's frozen parameters dataclass: ``seeds``, ``from_toml`` and ``to_dict``.
+    """What every study's frozen parameters share: the replicates and the paper study's camera and
+    loop timing, with ``seeds``, ``from_toml`` and ``to_dict``.
 
-    The subclass sets ``_TABLE``, the name of its table in a TOML file (``[paper]``), and has the
-    fields ``replicates`` and ``first_seed``.
+    A study subclasses it as a frozen dataclass, adds its own fields, and sets ``_TABLE``, the name
+    of its table in a TOML file (``[paper]``).
+
+    Parameters
+    ----------
+    replicates : int
+        Replicates per cell, >= 2 (an interval needs two); every study's declared size is 10.
+    first_seed : int
+        Seed of the first replicate, >= 0; replicate i uses seed ``first_seed + i``.
+    revolutions : float
+        Periods of the target's motion per replicate, >= 2: one acquisition revolution plus at
+        least one measured.
+    period_s : float
+        Period of the target's motion, s (2).
+    fps : float
+        Camera frame rate (30).
+    latency_frames : int
+        Vision latency in frames (1).
+    noise_std : float
+        Sensor noise, grey levels (2).
     """
+
+    replicates: int = 10
+    first_seed: int = 0
+    revolutions: float = 2.0
+    period_s: float = 2.0
+    fps: float = 30.0
+    latency_frames: int = 1
+    noise_std: float = 2.0
 
     _TABLE = ""
 

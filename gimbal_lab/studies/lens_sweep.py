@@ -126,25 +126,13 @@ class LensSweepStudy(StudyParams):
 
     Parameters
     ----------
-    replicates : int
-        Replicates per cell, >= 2; the study: 10.
-    first_seed : int
-        Seed of the first replicate, >= 0.
-    revolutions : float
-        Periods of the target's cone per replicate, >= 2 (the first is acquisition).
-    period_s, fps, latency_frames, noise_std :
-        As in the paper's study (2 s, 30 fps, 1 frame, 2 grey levels).
+    replicates, first_seed, revolutions, period_s, fps, latency_frames, noise_std :
+        As every study's (:class:`~gimbal_lab.studies._params.StudyParams`); a revolution is
+        one turn of the target's cone.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
         Corner refinement (sub-pixel, as in the paper's study).
     """
 
-    replicates: int = 10
-    first_seed: int = 0
-    revolutions: float = 2.0
-    period_s: float = 2.0
-    fps: float = 30.0
-    latency_frames: int = 1
-    noise_std: float = 2.0
     aruco_refinement: str = "subpix"
 
     _TABLE = NAME

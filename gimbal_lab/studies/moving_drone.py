@@ -80,14 +80,8 @@ class MovingDroneStudy(StudyParams):
 
     Parameters
     ----------
-    replicates : int
-        Replicates per cell, >= 2; the study: 10.
-    first_seed : int
-        Seed of the first replicate, >= 0.
-    revolutions : float
-        Periods of the target's circle per replicate, >= 2 (the first is acquisition).
-    period_s, fps, latency_frames, noise_std :
-        As in the paper's study (2 s, 30 fps, 1 frame, 2 grey levels).
+    replicates, first_seed, revolutions, period_s, fps, latency_frames, noise_std :
+        As every study's (:class:`~gimbal_lab.studies._params.StudyParams`).
     exposure_s : float
         Exposure of every frame, s (1/60), at most one frame period.
     readout_s : float
@@ -98,13 +92,6 @@ class MovingDroneStudy(StudyParams):
         Corner refinement (sub-pixel, as in the paper's study).
     """
 
-    replicates: int = 10
-    first_seed: int = 0
-    revolutions: float = 2.0
-    period_s: float = 2.0
-    fps: float = 30.0
-    latency_frames: int = 1
-    noise_std: float = 2.0
     exposure_s: float = 1.0 / 60.0
     readout_s: float = 0.020
     gyro_noise_deg_s_rthz: float = math.degrees(GYRO_NOISE_RAD_S_RTHZ)

@@ -89,10 +89,9 @@ PANEL_SIZE_M = 0.6
 PANEL_THICKNESS_M = 0.02
 #: Frames after re-acquisition over which the distance error is averaged (0.5 s at 30 frames/s).
 AFTER_FRAMES = 15
-#: δ floors: a pointing difference under 0.2° (about 2 px at the study's 554 px focal length) or
-#: under one frame of re-acquisition is no difference worth the name.
+#: δ floor: a pointing difference under 0.2° (about 2 px at the study's 554 px focal length) is no
+#: difference worth the name.
 ANGLE_FLOOR_DEG = 0.2
-FRAME_FLOOR = 1.0
 #: Samples per period when measuring how long an occluder hides the circle's target.
 _HIDDEN_SAMPLES = 4000
 
@@ -150,24 +149,14 @@ class OcclusionStudy(StudyParams):
 
     Parameters
     ----------
-    replicates : int
-        Replicates per cell, >= 2; the study: 10.
-    first_seed : int
-        Seed of the first replicate, >= 0.
+    replicates, first_seed, period_s, fps, latency_frames, noise_std :
+        As every study's (:class:`~gimbal_lab.studies._params.StudyParams`).
     revolutions : float
         Periods per replicate, >= 2 (the first is acquisition): 3, so that the circle's target is
         hidden twice in the measured part.
-    period_s, fps, latency_frames, noise_std :
-        As in the paper's study (2 s, 30 fps, 1 frame, 2 grey levels).
     """
 
-    replicates: int = 10
-    first_seed: int = 0
-    revolutions: float = 3.0
-    period_s: float = 2.0
-    fps: float = 30.0
-    latency_frames: int = 1
-    noise_std: float = 2.0
+    revolutions: float = 3.0  # the circle's target is hidden twice in the measured part
 
     _TABLE = NAME
 
@@ -345,7 +334,7 @@ def _cell(replicates: pd.DataFrame, occlusion, target, loop, column) -> pd.Serie
     return sel.set_index("seed")[column].sort_index()
 
 
-_FLOORS = {"deg": ANGLE_FLOOR_DEG, "frames": FRAME_FLOOR}
+_FLOORS = {"deg": ANGLE_FLOOR_DEG}
 
 
 def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:

@@ -62,33 +62,14 @@ class PaperStudy(StudyParams):
 
     Parameters
     ----------
-    replicates : int
-        Replicates per cell, >= 2 (an interval needs two); the study: 10.
-    first_seed : int
-        Seed of the first replicate, >= 0; replicate i uses seed ``first_seed + i``.
-    revolutions : float
-        Periods per replicate, >= 2: one acquisition revolution plus at least one measured.
-    period_s : float
-        Period of the target's motion, s (2).
-    fps : float
-        Camera frame rate (30).
-    latency_frames : int
-        Vision latency in frames (1).
-    noise_std : float
-        Sensor noise, grey levels (2).
+    replicates, first_seed, revolutions, period_s, fps, latency_frames, noise_std :
+        As every study's (:class:`~gimbal_lab.studies._params.StudyParams`).
     outer_loop : {"paper", "predictive"}
         What "active" means (the paper's ZN PI image loop by default).
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
         The study's corner refinement (sub-pixel).
     """
 
-    replicates: int = 10
-    first_seed: int = 0
-    revolutions: float = 2.0
-    period_s: float = 2.0
-    fps: float = 30.0
-    latency_frames: int = 1
-    noise_std: float = 2.0
     outer_loop: str = "paper"
     aruco_refinement: str = "subpix"
 
