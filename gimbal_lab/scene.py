@@ -40,7 +40,9 @@ Conventions
   top (``antialias="window"``, the default; ``antialias="full"`` multisamples everything). The
   target's pixels are those of the full multisampled render, bit for bit: the box is computed
   from the true poses, which the renderer has anyway. The background is drawn again only when
-  the camera moves: a fixed camera's frame costs one small multisampled window. Elsewhere one sample per pixel differs
+  the camera moves: a fixed camera's frame costs one small multisampled window, and with a lens
+  only the output pixels whose bilinear taps reach that window are remapped again (the rest are
+  the distorted background's, bit for bit a full remap). Elsewhere one sample per pixel differs
   where the ground's far edge meets the sky and, over the textured ground (shaded once per
   pixel either way), by rounding: one grey level in about 0.5 % of the values, rarely two.
 
@@ -805,6 +807,38 @@ _MAX_KNOTS = 513
 _DENSE_STEPS_PER_KNOT = 32  # time steps per knot interval on which image paths are measured
 
 
+# Side of the canvas tiles by which the output pixels a target window reaches through the lens
+# are looked up (SceneRenderer._output_rect): a box is rounded out to whole tiles.
+_TAP_TILE_PX = 16
+
+
+def _tap_tile_table(map1: np.ndarray, canvas_size, tile_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """For fixed-point remap maps (``cv2.CV_16SC2``: integer source x, y per output pixel), the
+    output rectangle reading each canvas tile: (lo, hi) of shape (tiles_y, tiles_x, 2) holding
+    (u0, v0) and (u1, v1), ends excluded; an unread tile has lo > hi.
+
+    A bilinear tap of output pixel (u, v) reads canvas pixels x, x + 1 and y, y + 1 around its
+    source's integer part, clamped to the canvas (``BORDER_REPLICATE``).
+    """
+    width, height = canvas_size
+    rows, cols = map1.shape[:2]
+    v, u = np.divmod(np.arange(rows * cols), cols)
+    sx = map1[..., 0].ravel().astype(np.int64)
+    sy = map1[..., 1].ravel().astype(np.int64)
+    tiles_x, tiles_y = -(-width // tile_px), -(-height // tile_px)
+    lo = np.full((tiles_y * tiles_x, 2), np.iinfo(np.int64).max, dtype=np.int64)
+    hi = np.full((tiles_y * tiles_x, 2), np.iinfo(np.int64).min, dtype=np.int64)
+    for dx in (0, 1):
+        tx = np.clip(sx + dx, 0, width - 1) // tile_px
+        for dy in (0, 1):
+            tile = (np.clip(sy + dy, 0, height - 1) // tile_px) * tiles_x + tx
+            np.minimum.at(lo[:, 0], tile, u)
+            np.minimum.at(lo[:, 1], tile, v)
+            np.maximum.at(hi[:, 0], tile, u + 1)
+            np.maximum.at(hi[:, 1], tile, v + 1)
+    return lo.reshape(tiles_y, tiles_x, 2), hi.reshape(tiles_y, tiles_x, 2)
+
+
 def _rigid_inverse(T: np.ndarray) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3] = T[:3, :3].T
@@ -1273,6 +1307,9 @@ class SceneRenderer:
         self._motion_stats = None  # what the last render_motion did (slices, warps, pose calls)
         self._output_rows = None  # output row of each canvas pixel (rolling shutter), on first use
         self._background = None  # (camera pose bytes, canvas without the target) of the last sharp frame
+        self._last_window = None  # the last sharp canvas: None (drawn whole), "none" or the window on the background
+        self._distorted_background = None  # (camera pose bytes, the background remapped through the lens)
+        self._tap_tiles = None  # per canvas tile, the output pixels reading it (_output_rect), on first use
         self._last_background_window = None  # the multisampled window of the last blurred frame's background
         self.background_renders = 0  # how many sharp frames drew the background (the rest reused it)
 
@@ -1376,12 +1413,14 @@ class SceneRenderer:
 
     def _render_sharp_canvas(self, T_world_cam, T_world_target) -> np.ndarray:
         """The sharp canvas, anti-aliased as ``self.antialias`` says (see the module notes)."""
+        self._last_window = None
         if self.antialias == "full" or not self._flags:
             return self._render_canvas(T_world_cam, T_world_target)
         T_world_cam = _check_pose("T_world_cam", T_world_cam)
         T_world_target = _check_pose("T_world_target", T_world_target)
         box = self._target_box(T_world_cam, T_world_target)
         width, height = self.canvas_intrinsics.size
+        self._last_window = None
         if isinstance(box, str) or (box is not None and box[2] * box[3] > _WINDOW_MAX_SHARE * width * height):
             return self._render_canvas(T_world_cam, T_world_target)
         image = self._background_canvas(T_world_cam, T_world_target).copy()
@@ -1393,6 +1432,7 @@ class SceneRenderer:
                 image[y0 : y0 + h, x0 : x0 + w] = self._render_canvas(T_world_cam, T_world_target)[:, :, :3]
             finally:
                 renderer.region = None
+        self._last_window = box if box is not None else "none"
         return image
 
     def _background_canvas(self, T_world_cam: np.ndarray, T_world_target: np.ndarray) -> np.ndarray:
@@ -1411,10 +1451,58 @@ class SceneRenderer:
             self.background_renders += 1
         return self._background[1]
 
-    def _finish(self, canvas: np.ndarray) -> np.ndarray:
-        """Canvas → output image: lens distortion, then sensor noise."""
+    def _remap_rect(self, canvas: np.ndarray, rect=None) -> np.ndarray:
+        """The distorted image (or its output rectangle ``rect`` = (u0, v0, u1, v1), ends
+        excluded) of a canvas: each output pixel reads only its own bilinear taps."""
+        map1, map2 = self._map1, self._map2
+        if rect is not None:
+            u0, v0, u1, v1 = rect
+            map1, map2 = map1[v0:v1, u0:u1], map2[v0:v1, u0:u1]
+        return cv2.remap(canvas, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _output_rect(self, box) -> tuple[int, int, int, int] | None:
+        """The output rectangle (u0, v0, u1, v1), ends excluded, holding every output pixel one of
+        whose bilinear taps lies in the canvas box (x0, y0, w, h); None when no pixel's does.
+
+        From a table built once: for each _TAP_TILE_PX square tile of the canvas, the bounding
+        rectangle of the output pixels with a tap in it (taps at the source's integer part and
+        one pixel right and below, clamped to the canvas as ``BORDER_REPLICATE`` reads them).
+        The rectangle of the tiles the box touches therefore holds the box's, and may be larger.
+        """
+        if self._tap_tiles is None:
+            self._tap_tiles = _tap_tile_table(self._map1, self.canvas_intrinsics.size, _TAP_TILE_PX)
+        lo, hi = self._tap_tiles
+        x0, y0, w, h = box
+        tiles = (slice(y0 // _TAP_TILE_PX, (y0 + h - 1) // _TAP_TILE_PX + 1),
+                 slice(x0 // _TAP_TILE_PX, (x0 + w - 1) // _TAP_TILE_PX + 1))
+        u0, v0 = lo[tiles].reshape(-1, 2).min(axis=0)
+        u1, v1 = hi[tiles].reshape(-1, 2).max(axis=0)
+        return (int(u0), int(v0), int(u1), int(v1)) if u1 > u0 and v1 > v0 else None
+
+    def _distort_sharp(self, canvas: np.ndarray) -> np.ndarray:
+        """The distorted image of the canvas :meth:`_render_sharp_canvas` just returned. When that
+        canvas is the reused background with the target's window on top, only the output pixels
+        whose taps reach the window are remapped; the rest come from the distorted background,
+        kept while the background is. Bit-equal to remapping the whole canvas."""
+        window = self._last_window
+        if window is None:
+            return self._remap_rect(canvas)
+        key, background = self._background
+        if self._distorted_background is None or self._distorted_background[0] != key:
+            self._distorted_background = (key, self._remap_rect(background))
+        image = self._distorted_background[1].copy()
+        rect = None if isinstance(window, str) else self._output_rect(window)
+        if rect is not None:
+            u0, v0, u1, v1 = rect
+            image[v0:v1, u0:u1] = self._remap_rect(canvas, rect)
+        return image
+
+    def _finish(self, canvas: np.ndarray, sharp: bool = False) -> np.ndarray:
+        """Canvas → output image: lens distortion, then sensor noise. ``sharp``: the canvas is the
+        one :meth:`_render_sharp_canvas` just returned (its reused background need not be
+        remapped again)."""
         if self._map1 is not None:
-            image = cv2.remap(canvas, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            image = self._distort_sharp(canvas) if sharp else self._remap_rect(canvas)
         else:
             image = np.ascontiguousarray(canvas)
         if self.noise_std > 0:
@@ -1440,7 +1528,7 @@ class SceneRenderer:
         ndarray, shape (H, W, 3), uint8
             sRGB image of the output camera (distorted if the renderer has a distortion).
         """
-        return self._finish(self._render_sharp_canvas(T_world_cam, T_world_target))
+        return self._finish(self._render_sharp_canvas(T_world_cam, T_world_target), sharp=True)
 
     def render_exposure(self, pose_fn, t_start_s: float, exposure_s: float, n_subframes: int) -> np.ndarray:
         """Render a frame whose exposure integrates motion of camera and target (motion blur).
@@ -1985,7 +2073,7 @@ class SceneRenderer:
                 self._platform.delete_context()
                 self._renderer = None
                 self._platform = None
-                self._background = None
+                self._background = self._distorted_background = None
 
     def __enter__(self) -> "SceneRenderer":
         return self

@@ -489,6 +489,77 @@ def test_a_still_camera_reuses_its_background():
         assert reusing.background_renders == 2
 
 
+@pytest.mark.parametrize("target", ["sphere", "aruco"])
+@pytest.mark.parametrize("lens", [DIST, BrownConrady(k1=0.15, p1=0.004, p2=-0.003)], ids=["barrel", "pincushion"])
+def test_a_still_camera_remaps_only_the_targets_window(target, lens):
+    """Oracle: ``cv2.remap`` of the whole sharp canvas through the lens's maps. With the
+    background reused, only the output pixels reading the target's window are remapped again;
+    every frame must be that oracle bit for bit: the target anywhere in the view, cut by the
+    image's edge, in the canvas margin that only the corners' taps reach, outside the canvas
+    and behind the camera. A rectangle one pixel short on any side breaks it somewhere here."""
+    rng = np.random.default_rng(7)
+    positions = [(0.0, 0.0, 3.0), (0.0, 0.0, -3.0), (2.5, 0.0, 2.0), (0.0, 2.2, 2.0)]
+    positions += [(x * 1.1 * z * 320 / 554, y * 1.1 * z * 240 / 554, z)  # around the image's rim
+                  for x, y, z in zip(rng.uniform(-1, 1, 40), rng.choice([-1, 1], 40) * rng.uniform(0.8, 1.0, 40),
+                                     rng.uniform(1.5, 4.0, 40))]
+    positions += [tuple(p) for p in rng.uniform((-1.5, -1.1, 2.0), (1.5, 1.1, 5.0), (20, 3))]
+    with SceneRenderer(CAM, lens, target=target) as renderer:
+        renders = []
+        for p_cam in positions:
+            T_world_target = target_pose(T_HOME, np.array(p_cam))
+            frame = renderer.render(T_HOME, T_world_target)
+            renders.append(renderer._last_window)
+            oracle = cv2.remap(renderer._render_sharp_canvas(T_HOME, T_world_target), renderer._map1,
+                               renderer._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            assert np.array_equal(frame, oracle), p_cam
+        assert renderer.background_renders == 1
+    windows = [w for w in renders if not isinstance(w, str) and w is not None]
+    assert "none" in renders and len(windows) > 50  # the cheap path was taken, target seen and unseen
+
+
+@pytest.mark.parametrize("lens", [DIST, BrownConrady(k1=0.15, p1=0.004, p2=-0.003)], ids=["barrel", "pincushion"])
+def test_the_remapped_rectangle_holds_every_pixel_the_window_reaches(lens):
+    """Oracle: ``cv2.remap`` itself, of a canvas that is 255 inside a box and 0 elsewhere. Every
+    output pixel that comes out non-zero must lie inside ``_output_rect(box)``; and the rectangle
+    must lie inside the bounding box (plus one pixel, for taps of weight zero) of the pixels that
+    read the box rounded out to whole 16-px tiles, which is all it looks up. Boxes are drawn
+    anywhere on the canvas, margins included, with their edges on and off the tile grid."""
+    from gimbal_lab.scene import _TAP_TILE_PX
+
+    rng = np.random.default_rng(3)
+    with SceneRenderer(CAM, lens, target="sphere") as renderer:
+        width, height = renderer.canvas_intrinsics.size
+        boxes = [(0, 0, width, height), (0, 0, 1, 1), (width - 1, height - 1, 1, 1)]
+        for _ in range(300):
+            x0, y0 = int(rng.integers(0, width - 1)), int(rng.integers(0, height - 1))
+            if rng.random() < 0.5:  # an edge on the tile grid
+                x0, y0 = x0 // _TAP_TILE_PX * _TAP_TILE_PX, y0 // _TAP_TILE_PX * _TAP_TILE_PX
+            w, h = int(rng.integers(1, min(120, width - x0) + 1)), int(rng.integers(1, min(120, height - y0) + 1))
+            boxes.append((x0, y0, w, h))
+
+        def reached(x0, y0, x1, y1):
+            canvas = np.zeros((height, width), np.uint8)
+            canvas[y0:y1, x0:x1] = 255
+            out = cv2.remap(canvas, renderer._map1, renderer._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            return np.nonzero(out)
+
+        tile = _TAP_TILE_PX
+        empty = 0
+        for x0, y0, w, h in boxes:
+            v, u = reached(x0, y0, x0 + w, y0 + h)
+            rect = renderer._output_rect((x0, y0, w, h))
+            if len(u) == 0:
+                empty += 1
+                continue
+            assert rect is not None, (x0, y0, w, h)
+            u0, v0, u1, v1 = rect
+            assert u0 <= u.min() and u.max() < u1 and v0 <= v.min() and v.max() < v1, (x0, y0, w, h)
+            v, u = reached(x0 // tile * tile, y0 // tile * tile, -(-(x0 + w) // tile) * tile, -(-(y0 + h) // tile) * tile)
+            assert u.min() - 1 <= u0 and u1 - 1 <= u.max() + 1, (x0, y0, w, h)
+            assert v.min() - 1 <= v0 and v1 - 1 <= v.max() + 1, (x0, y0, w, h)
+        assert empty < 0.2 * len(boxes)
+
+
 def test_antialias_must_be_window_or_full():
     with pytest.raises(ValueError, match="antialias"):
         SceneRenderer(CAM, target="sphere", antialias="msaa")
