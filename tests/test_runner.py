@@ -267,6 +267,52 @@ def test_local_workers_start_with_one_blas_thread(monkeypatch):
     assert _environment(names) == before
 
 
+_MMAPPED_FRAMES = """
+import ctypes, os, sys
+import numpy as np
+from gimbal_lab.runner import _keep_frames_on_the_heap, _prepare_process
+
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = MallInfo2
+
+def mapped_frames():
+    before = libc.mallinfo2().hblks
+    frames = [np.empty((480, 640, 3), np.uint8) for _ in range(4)]
+    return libc.mallinfo2().hblks - before
+
+first = mapped_frames()
+_prepare_process()  # what a worker does before its first run
+after = mapped_frames()
+print(first, _keep_frames_on_the_heap(), after)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+@pytest.mark.parametrize("trim", ["65536", None], ids=["dask-worker", "plain"])
+def test_workers_keep_frames_on_the_heap_when_malloc_trim_is_fixed(trim):
+    """Oracle: glibc's own count of memory-mapped blocks (``mallinfo2().hblks``). With
+    ``MALLOC_TRIM_THRESHOLD_`` set, as Dask's nannies start workers, each 0.9 MB frame is its own
+    mapping; after the worker's preparation none is. Without it glibc's sliding threshold is left
+    alone (here the frames' first allocation is mapped and the threshold then rises past them)."""
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    if trim is not None:
+        env["MALLOC_TRIM_THRESHOLD_"] = trim
+    probe = subprocess.run([sys.executable, "-c", _MMAPPED_FRAMES], env=env, capture_output=True, text=True,
+                           timeout=120)
+    if "mallinfo2" in probe.stderr:
+        pytest.skip("not glibc >= 2.33")
+    assert probe.returncode == 0, probe.stderr
+    first, changed, after = probe.stdout.split()
+    if trim is not None:
+        assert (first, changed, after) == ("4", "True", "0")
+    else:
+        assert changed == "False"
+
+
 def test_dask_executor_gives_the_same_frames_as_one_process(reference):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
