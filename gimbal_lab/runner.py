@@ -40,7 +40,7 @@ import pandas as pd
 
 from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
-__all__ = ["ResultsStore", "RunInterrupted", "run", "source_hash", "dask_executor", "staged_folder"]
+__all__ = ["ResultsStore", "RunInterrupted", "SourceMismatch", "run", "source_hash", "dask_executor", "staged_folder"]
 
 log = logging.getLogger(__name__)
 
@@ -246,9 +246,20 @@ def _renderer_for(config: TrackingConfig):
     return renderer
 
 
-def _run_one(config: TrackingConfig) -> TrackingResult:
-    """What a worker does for one config (module-level so any executor can pickle it)."""
+class SourceMismatch(RuntimeError):
+    """A worker runs other gimbal_lab code than the process that keys and stores its results."""
+
+
+def _run_one(config: TrackingConfig, source: str | None = None) -> TrackingResult:
+    """What a worker does for one config (module-level so any executor can pickle it). ``source``:
+    the submitting process's :func:`source_hash`, which the worker's own must equal (a cluster's
+    machines with another gimbal-lab would otherwise fill the store with results under a key that
+    says they came from this code)."""
     _prepare_process()
+    if source is not None and source != source_hash():
+        raise SourceMismatch(
+            f"a worker (pid {os.getpid()}) runs gimbal_lab source {source_hash()[:12]}, the sweep's is "
+            f"{source[:12]}: install the same gimbal-lab on every worker (pip install of the same checkout)")
     return simulate(config, renderer=_renderer_for(config))
 
 
@@ -413,7 +424,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
                     finish(c, _run_one(c))
             elif todo:
                 pool = executor if executor is not None else _local_pool(min(jobs, len(todo)))
-                futures = {pool.submit(_run_one, c): c for c in todo}
+                futures = {pool.submit(_run_one, c, source_hash()): c for c in todo}
                 pending = set(futures)
                 restarts = 0
                 while pending:
@@ -435,7 +446,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
                                   f"{len(unfinished)} unfinished run(s), {MAX_POOL_RESTARTS - restarts} restart(s) "
                                   "left", RuntimeWarning, stacklevel=2)
                     pool = _local_pool(min(jobs, len(unfinished)))
-                    futures = {pool.submit(_run_one, c): c for c in unfinished}
+                    futures = {pool.submit(_run_one, c, source_hash()): c for c in unfinished}
                     pending = set(futures)
         except BaseException as exc:
             # Ctrl-C or a failed run: stop the rest at once instead of computing runs nobody will see

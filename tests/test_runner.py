@@ -51,9 +51,9 @@ def count_runs(monkeypatch) -> list:
     calls = []
     original = runner._run_one
 
-    def counting(config):
+    def counting(config, source=None):
         calls.append(config)
-        return original(config)
+        return original(config, source)
 
     monkeypatch.setattr(runner, "_run_one", counting)
     return calls
@@ -712,7 +712,7 @@ def test_a_failing_run_stops_the_queued_ones(tmp_path, monkeypatch):
 
     started = []
 
-    def failing(config):
+    def failing(config, source=None):
         started.append(config)
         time.sleep(0.3)  # every run takes a while, so the queue is still full when the first fails
         if len(started) == 1:
@@ -727,6 +727,16 @@ def test_a_failing_run_stops_the_queued_ones(tmp_path, monkeypatch):
     # The single worker may already have taken the second run when the failure is seen; the
     # third and fourth must never start.
     assert len(started) <= 2
+    assert not list((tmp_path / "s").rglob("*.parquet"))
+
+
+def test_a_worker_running_other_code_is_refused(monkeypatch, tmp_path):
+    """The sweep's source hash travels with each run; a worker whose own differs (another
+    gimbal-lab on a cluster's machine) refuses the run, naming both, and nothing is stored.
+    Here the spawned workers hash the real source and this process a patched one."""
+    monkeypatch.setattr(runner, "source_hash", lambda: "f" * 64)
+    with pytest.raises(runner.SourceMismatch, match="runs gimbal_lab source [0-9a-f]{12}, the sweep's is ffffffffffff"):
+        run(CONFIGS[:2], store=tmp_path / "s", jobs=2, progress=False)
     assert not list((tmp_path / "s").rglob("*.parquet"))
 
 
