@@ -54,14 +54,10 @@ def main() -> None:
     local_s = time.perf_counter() - t0
 
     with _cluster(args.scheduler, args.jobs) as address:
-        executor = dask_executor(address)
-        try:
+        with dask_executor(address) as executor:
             t0 = time.perf_counter()
             remote = run(configs, executor=executor, progress=False)
             dask_s = time.perf_counter() - t0
-        finally:
-            executor.shutdown(wait=True)
-            executor._client.close()
 
     equal = all(a.frames.equals(b.frames) for a, b in zip(local, remote))
     where = args.scheduler or f"LocalCluster, {args.jobs} worker processes"

@@ -329,7 +329,8 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 def dask_executor(address: str):
-    """A :class:`concurrent.futures.Executor` running on the Dask cluster at ``address``.
+    """A :class:`concurrent.futures.Executor` running on the Dask cluster at ``address``; its
+    ``shutdown`` (or leaving a ``with`` block) also closes the client it opened.
 
     Needs the ``[dask]`` extra. Workers must not fork after GL (Dask's nannies spawn workers by
     default) and each keeps its own renderers, as local workers do.
@@ -338,9 +339,18 @@ def dask_executor(address: str):
         raise ValueError(f"scheduler address must be a non-empty string such as tcp://HOST:8786, got {address!r}")
     try:
         from distributed import Client
+        from distributed.cfexecutor import ClientExecutor
     except ImportError as exc:
         raise ImportError("a Dask cluster needs the [dask] extra: pip install 'gimbal-lab[dask]'") from exc
-    return Client(address).get_executor()
+
+    class ClusterExecutor(ClientExecutor):
+        def shutdown(self, wait=True, **kwargs):
+            try:
+                super().shutdown(wait=wait, **kwargs)
+            finally:
+                self._client.close()
+
+    return ClusterExecutor(Client(address))
 
 
 # ----------------------------------------------------------------------------------------------

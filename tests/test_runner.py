@@ -317,14 +317,11 @@ def test_dask_executor_gives_the_same_frames_as_one_process(reference):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=logging.ERROR) as cluster:
-        executor = dask_executor(cluster.scheduler_address)
-        try:
+        with dask_executor(cluster.scheduler_address) as executor:
             t0 = time.perf_counter()
             results = run(CONFIGS, executor=executor, progress=False)
             seconds = time.perf_counter() - t0
-        finally:
-            executor.shutdown(wait=True)
-            executor._client.close()  # the Client dask_executor opened (ClientExecutor has no public handle)
+        assert executor._client.status == "closed"  # leaving the block closed the client it opened
     print(f"\n[wall time] Dask LocalCluster (2 worker processes), {len(CONFIGS)} configs: {seconds:.2f} s")
     assert_same_results(results, reference)
 

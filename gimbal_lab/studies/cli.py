@@ -107,6 +107,8 @@ def _run(args, parser) -> int:
     finally:
         logger.removeHandler(handler)
         handler.close()
+        if executor is not None:
+            executor.shutdown(wait=False)
     claims = (report["folder"] / "claims.md").read_text()
     print(claims)
     print(f"Wrote {len(report['written'])} files to {report['folder']}; the per-run log is {log_path}.")
