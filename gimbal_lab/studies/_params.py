@@ -208,6 +208,15 @@ def verdict_reason(row, no_pairs: str) -> str:
     return f"the interval [{f(row.low)}, {f(row.high)}] {u} straddles 0 and reaches beyond ±δ = {f(row.delta)} {u}"
 
 
+def verdict_rule(delta: str, more: str = "") -> str:
+    """The report's sentence stating the verdict rule (docs/design.md, Verdicts) for a study whose
+    δ is ``delta``, followed by the study's own ``more``."""
+    rule = ("Verdicts: for “a < b”, the 95 % t-interval of the paired difference a − b; **holds** when it lies "
+            f"below 0 and the mean difference is at least δ = {delta}; **does not hold** when it lies above 0 or "
+            "within ±δ; otherwise **inconclusive**.")
+    return f"{rule} {more}" if more else rule
+
+
 def verdict_lines(verdicts, reason, unit_in_list: bool = False) -> list[str]:
     """claims.md's verdict table, the count per hypothesis and the list of conditions that do not
     hold or are inconclusive, each with ``reason(row)`` (the unit beside the condition when

@@ -344,12 +344,10 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         f"Up to {n} replicates per cell of {study.revolutions:g} revolutions (the first is acquisition), paired by "
         "replicate. Strategy comparisons of error use the frames where every strategy detected the target.",
         "",
-        "Verdicts: for “a < b”, the 95 % t-interval of the paired difference a − b; **holds** when it lies below 0 "
-        "and the mean difference is at least δ = max(floor, 10 % of the smaller mean), floors 1 mm, "
-        f"{RATE_FLOOR_PCT:g} % of detection rate and {COST_FLOOR_MS:g} ms per frame; **does not hold** when it lies "
-        "above 0 or within ±δ; otherwise **inconclusive**. H3's error rows test “undistort < rectify”: an interval "
-        "within ±δ (does not hold, no effect) means the two are equally accurate, which meets the design's “at least "
-        "as accurate”; only an interval above 0 contradicts it.",
+        _params.verdict_rule(f"max(floor, 10 % of the smaller mean), floors 1 mm, {RATE_FLOOR_PCT:g} % of detection "
+                             f"rate and {COST_FLOOR_MS:g} ms per frame", "H3's error rows test “undistort < rectify”: "
+                             "an interval within ±δ (does not hold, no effect) means the two are equally accurate, "
+                             "which meets the design's “at least as accurate”; only an interval above 0 contradicts it."),
         "",
     ]
     lines += _params.verdict_lines(verdicts, verdict_reason, unit_in_list=True)

@@ -325,10 +325,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         "is acquisition); cells are paired by replicate. Errors are over the frames where every mount detected "
         "the target.",
         "",
-        "Verdicts: for “a < b”, the 95 % t-interval of the paired difference a − b; **holds** when it lies below "
-        "0 and the mean difference is at least δ = max(floor, 10 % of the smaller mean), floor 1 mm for errors "
-        f"and {STREAK_FLOOR_PX:g} px for streaks; **does not hold** when it lies above 0 or within ±δ; otherwise "
-        "**inconclusive**. A replicate without common detections drops out of its pair.",
+        _params.verdict_rule(f"max(floor, 10 % of the smaller mean), floor 1 mm for errors and {STREAK_FLOOR_PX:g} px "
+                             "for streaks", "A replicate without common detections drops out of its pair."),
         "",
     ]
     lines += _params.verdict_lines(verdicts, verdict_reason)

@@ -402,10 +402,9 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         f"filter on the target's world position. Up to {n} replicates per cell of {study.revolutions:g} revolutions "
         "(the first is acquisition), paired by replicate.",
         "",
-        "Verdicts: for “a < b”, the 95 % t-interval of the paired difference a − b; **holds** when it lies below 0 "
-        f"and the mean difference is at least δ = max({ANGLE_FLOOR_DEG:g}°, 10 % of the smaller mean); **does not "
-        "hold** when it lies above 0 or within ±δ; otherwise **inconclusive**. H2c rows state the opposite of the "
-        "design's “without losing on the circle”: that part of the claim stands where they do not hold.",
+        _params.verdict_rule(f"max({ANGLE_FLOOR_DEG:g}°, 10 % of the smaller mean)", "H2c rows state the opposite of "
+                             "the design's “without losing on the circle”: that part of the claim stands where they "
+                             "do not hold."),
         "",
     ]
     lines += _params.verdict_lines(verdicts, verdict_reason, unit_in_list=True)

@@ -23,7 +23,7 @@ import pandas as pd
 
 from .. import stats
 from ..simulation import TrackingConfig
-from ._params import StudyParams, report_pyplot, write_report_files
+from ._params import StudyParams, report_pyplot, verdict_rule, write_report_files
 
 __all__ = [
     "PaperStudy",
@@ -399,10 +399,8 @@ def claims_markdown(verdicts: pd.DataFrame, replicates: pd.DataFrame | None = No
         f"of {study.revolutions:g} revolutions (the first is acquisition, reported apart); a replicate's mean "
         "error over its measured revolution(s) is one observation, and cells are compared pairwise by replicate.",
         "",
-        "Verdicts: for “a < b”, the 95 % t-interval of the paired difference a − b; **holds** when it lies "
-        "below 0 and the mean difference is at least δ = max(1 mm, 10 % of the smaller mean); **does not "
-        "hold** when it lies above 0 or within ±δ; otherwise **inconclusive**. For “a ≈ b”, two one-sided "
-        "tests with a ±20 % margin of the two means' average. Differences in mm.",
+        verdict_rule("max(1 mm, 10 % of the smaller mean)", "For “a ≈ b”, two one-sided tests with a ±20 % "
+                     "margin of the two means' average. Differences in mm."),
         "",
         "| id | § | claim | condition | a | b | mean a | mean b | a − b [95 % CI] | δ | verdict |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
