@@ -477,7 +477,7 @@ def test_a_read_only_store_serves_what_it_holds_and_refuses_to_compute_in_one_li
         ResultsStore(shared_tmp / "file")
 
 
-@pytest.mark.parametrize("mode", [0o700, 0o750, 0o755, 0o2770])
+@pytest.mark.parametrize("mode", [0o700, 0o750, 0o755, 0o2770], ids=oct)
 def test_entries_are_readable_by_whom_the_runs_folder_is(tmp_path, mode):
     root = tmp_path / "store"
     root.mkdir()
