@@ -1225,7 +1225,8 @@ def test_a_worker_running_other_code_is_refused(monkeypatch, tmp_path, story):
         assert message.endswith(f"1 of 3 runs are finished and kept in {store}; run the same command again to "
                                 "resume (it reuses them and computes the other 2)"), message
     else:
-        assert message.startswith(f"gimbal_lab's files changed during the sweep (now source {runner._hash_package()[:12]}"
+        now = runner._hash_package()[:12]
+        assert message.startswith(f"gimbal_lab's files changed during the sweep (now source {now}"
                                   ", the sweep's ffffffffffff; a file edited while it ran?): 1 of 3 runs are finished "
                                   f"and kept in {store} under the source the sweep started with; run the same command "
                                   "again: it computes every run with the code as it is now"), message
