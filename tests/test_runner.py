@@ -611,6 +611,7 @@ TWO_SWEEPS_SCRIPT = textwrap.dedent('''
 
     runner._run_one = recorded
     runner.CLAIM_POLL_S = 0.05
+    Path(log_path + ".ready").touch()
     while not os.path.exists(go):
         time.sleep(0.005)
     results = runner.run(configs, store=store, jobs=1, progress=False)
@@ -628,7 +629,10 @@ def test_two_processes_on_one_store_compute_each_run_once(tmp_path):
     procs = [subprocess.Popen([sys.executable, str(tmp_path / "sweep.py"), str(tmp_path / "store"),
                                str(tmp_path / "configs.json"), str(tmp_path / f"computed-{i}.txt"), str(go)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for i in range(2)]
-    time.sleep(3.0)  # both are past their imports, polling for the start
+    deadline = time.monotonic() + 120
+    while not all((tmp_path / f"computed-{i}.txt.ready").exists() for i in range(2)):  # both past their imports
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs), [p.poll() for p in procs]
+        time.sleep(0.02)
     go.touch()
     outputs = [p.communicate(timeout=300) for p in procs]
     for p, (out, err) in zip(procs, outputs):
