@@ -5,16 +5,22 @@
   context must never fork), or e.g. a Dask cluster's executor
   (``distributed.Client(address).get_executor()``, see :func:`dask_executor`). Every worker keeps
   one scene renderer per camera, lens and target and reuses it across runs, and uses one llvmpipe
-  thread (the fastest setting with one process per core).
+  thread (the fastest setting with one process per core). Every result a worker returns is checked
+  against the config that was sent (same config, a valid frame table) before it is stored.
 * **The results store** (:class:`ResultsStore`): one Parquet frame table and one JSON sidecar
-  (config, package version, source hash, seed, timings) per run, each written atomically
-  (temporary file, then ``os.replace``). An entry is keyed by the config *and* a hash of the
-  package's source, so any change to the code recomputes; a corrupt or foreign entry is reported
-  with a warning naming the file and recomputed. Nothing is ever unpickled from disk.
-* **Interruption.** Finished runs are stored the moment they finish. Ctrl-C cancels what is
-  queued, stops the local workers at once and raises :class:`RunInterrupted` saying how many runs
-  were kept; running the same command again resumes. Local workers exit by themselves when the
-  parent process dies (even by SIGKILL).
+  (config, package version, source hash, seed, timings, the table's SHA-256) per run, each
+  written atomically (temporary file, then ``os.replace``). An entry is keyed by the config *and*
+  a hash of the package's source, so any change to the code recomputes. An entry is served only
+  if its table's bytes match the digest in its sidecar and its columns, dtypes and frame times
+  fit the config; anything else is moved aside (``NAME.corrupt``), named in a warning and
+  recomputed. Nothing is ever unpickled from disk. Processes sharing a store claim each run
+  before computing it, so no run is computed twice.
+* **Interruption and failure.** Finished runs are stored the moment they finish. Ctrl-C cancels
+  what is queued, stops the local workers at once and raises :class:`RunInterrupted`; a sweep that
+  cannot go on (workers dying again and again, workers running other code, a result that does not
+  fit its config) raises a :class:`SweepFailed`; a store that cannot be written raises
+  :class:`StoreError`. Each says in one line how many runs are kept and how to resume. Local
+  workers exit by themselves when the parent process dies (even by SIGKILL).
 """
 
 from __future__ import annotations
@@ -25,9 +31,12 @@ import hashlib
 import json
 import logging
 import os
+import secrets
+import shutil
 import signal
+import socket
+import stat
 import sys
-import tempfile
 import threading
 import time
 import warnings
@@ -36,20 +45,22 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
-__all__ = ["ResultsStore", "RunInterrupted", "SourceMismatch", "run", "source_hash", "dask_executor", "staged_folder"]
+__all__ = ["ResultsStore", "RunInterrupted", "SweepFailed", "SourceMismatch", "WorkersDied", "ResultMismatch",
+           "StoreError", "run", "source_hash", "dask_executor", "staged_folder"]
 
 log = logging.getLogger(__name__)
 
-STORE_FORMAT = 1
+#: 2: the sidecar records the table's SHA-256 (``table_sha256``), and tables carry page CRCs.
+STORE_FORMAT = 2
 
 
-@functools.lru_cache(maxsize=1)
-def source_hash() -> str:
-    """SHA-256 (hex, 16 characters) of every ``.py`` file of the installed package, path and bytes."""
+def _hash_package() -> str:
+    """SHA-256 (hex, 16 characters) of every ``.py`` file of the package as it is on disk now."""
     root = Path(__file__).resolve().parent
     digest = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
@@ -60,19 +71,320 @@ def source_hash() -> str:
     return digest.hexdigest()[:16]
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through ``write(tmp_path)`` to a temporary file beside ``path``, then rename it over."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+@functools.lru_cache(maxsize=1)
+def source_hash() -> str:
+    """SHA-256 (hex, 16 characters) of every ``.py`` file of the installed package, path and bytes,
+    taken once per process (the first time it is asked for)."""
+    return _hash_package()
+
+
+# ----------------------------------------------------------------------------------------------
+# errors a command line prints in one line
+# ----------------------------------------------------------------------------------------------
+class StoreError(RuntimeError):
+    """The results store cannot be used: ``path`` could not be created or written (``reason``).
+
+    ``str()`` is one line naming the path, the cause and what to do.
+    """
+
+    def __init__(self, path, cause, doing: str = "write"):
+        reason = cause.strerror if isinstance(cause, OSError) and cause.strerror else str(cause)
+        super().__init__(str(path), reason, doing)  # all of it in args: it pickles
+        self.path, self.reason, self.doing = Path(path), reason, doing
+
+    def __str__(self) -> str:
+        return (f"results store: cannot {self.doing} {self.path}: {self.reason} (make the folder writable, or give "
+                "another store or output folder)")
+
+
+def _resume_hint(kept: int, total: int, store: ResultsStore | None) -> str:
+    """What a stopped sweep kept and what running it again does, in one sentence."""
+    if store is None:
+        return (f"{kept} of {total} runs finished but no store was given: they are lost, and a rerun computes "
+                f"all {total}")
+    others = total - kept
+    where = f"{kept} of {total} runs are finished and kept in {store.root}"
+    if store.read:
+        return f"{where}; run the same command again to resume (it reuses them and computes the other {others})"
+    return (f"{where}; a rerun without --no-cache (read=True) reuses them and computes the other {others}, while "
+            f"the same command, with --no-cache, recomputes all {total}")
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped :func:`run`; ``kept`` of ``total`` runs are finished (and stored).
+
+    ``str()`` says exactly what a rerun reuses: with a store that is read, the same command
+    resumes; with ``read=False`` (``--no-cache``) only a rerun without it reuses the kept runs.
+    """
+
+    def __init__(self, kept: int, total: int, store: ResultsStore | None):
+        self.kept, self.total, self.store = kept, total, store
+        super().__init__(f"interrupted: {_resume_hint(kept, total, store)}")
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+class SweepFailed(RuntimeError):
+    """A sweep stopped on an error; ``kept`` of ``total`` runs were finished and stored first.
+
+    Raised by :func:`run` after it stopped the workers; ``str()`` is one line: what went wrong,
+    what is kept and how to resume. ``kept``, ``total`` and ``store`` are None when the error was
+    made where they are not known (in a worker).
+    """
+
+    kept: int | None = None
+    total: int | None = None
+    store: ResultsStore | None = None
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+    def _stopped(self, kept: int, total: int, store, message: str):
+        self.kept, self.total, self.store = kept, total, store
+        self.args = (message, *self.args[1:])
+        return self
+
+
+class WorkersDied(SweepFailed):
+    """Local worker processes kept dying (:data:`MAX_POOL_RESTARTS` new pools did not help), or a
+    worker of an executor the runner cannot restart died."""
+
+
+class ResultMismatch(SweepFailed):
+    """A worker returned a result that is not the one of the config it was sent, or whose frame
+    table does not fit that config; it is not stored."""
+
+
+class SourceMismatch(SweepFailed):
+    """A worker runs other gimbal_lab code than the process that keys and stores its results.
+
+    Made in the worker with ``worker_source`` and ``sweep_source`` (the two source hashes);
+    :func:`run` adds what is kept and whether the package's files changed during the sweep.
+    """
+
+    def __init__(self, message: str, worker_source: str | None = None, sweep_source: str | None = None):
+        super().__init__(message, worker_source, sweep_source)
+        self.worker_source, self.sweep_source = worker_source, sweep_source
+
+
+# ----------------------------------------------------------------------------------------------
+# the frame table a stored or returned result must hold
+# ----------------------------------------------------------------------------------------------
+def _frame_clock(config: TrackingConfig) -> tuple[int, float]:
+    """The number of frames a run of ``config`` holds and its frame rate, Hz: the store's only use
+    of the config's fields (its key comes from ``to_dict``)."""
+    return config.n_frames, config.fps
+
+
+#: Columns of the frame table that hold integers and booleans (``simulation.closed_loop`` writes
+#: Python ints and bools there); every other column of ``simulation._COLUMNS`` holds float64.
+_INTEGER_COLUMNS = frozenset({"frame", "revolution"})
+_BOOLEAN_COLUMNS = frozenset({"detected", "alt_detected", "hidden", "partial"})
+
+
+def frame_schema() -> dict[str, np.dtype]:
+    """The frame table's columns, in order, and their dtypes (see :data:`gimbal_lab.simulation.FRAME_COLUMNS`)."""
+    from .simulation import _COLUMNS
+
+    def dtype(name):
+        return np.dtype("int64") if name in _INTEGER_COLUMNS else np.dtype(bool) if name in _BOOLEAN_COLUMNS \
+            else np.dtype("float64")
+
+    return {name: dtype(name) for name in _COLUMNS}
+
+
+def _listed(names, limit: int = 3) -> str:
+    names = list(names)
+    return ", ".join(map(repr, names[:limit])) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def check_frames(frames, config: TrackingConfig) -> None:
+    """Raise ValueError unless ``frames`` is a frame table a run of ``config`` can have produced.
+
+    Checked: the columns, in order, and their dtypes (:func:`frame_schema`); one row per frame
+    (``config.n_frames``); ``frame`` = 0, 1, …, n − 1; ``t_s`` = k / fps. The simulation computes
+    t_s as one correctly rounded division (error ≤ ½ ulp) and Parquet stores float64 exactly, so
+    the times must agree within 2 ε·t_last (ε: float64's machine epsilon), which also admits a
+    writer that forms k · (1/fps) (two roundings). A frame's time off by as little as one frame
+    (1/fps) is far outside it; a flip of a time's lowest bits is not, and is the digest's to catch.
+    """
+    if not isinstance(frames, pd.DataFrame):
+        raise ValueError(f"it is a {type(frames).__name__}, not a frame table (pandas.DataFrame)")
+    schema = frame_schema()
+    columns = list(frames.columns)
+    if columns != list(schema):
+        missing = [c for c in schema if c not in frames.columns]
+        extra = [c for c in columns if c not in schema]
+        if missing or extra:
+            raise ValueError("its columns are not the frame table's"
+                             + (f": missing {_listed(missing)}" if missing else "")
+                             + (f"{';' if missing else ':'} unknown {_listed(extra)}" if extra else ""))
+        raise ValueError("its columns are the frame table's in another order (or repeated)")
+    wrong = [f"{name} is {frames[name].dtype}, not {want}" for name, want in schema.items()
+             if frames[name].dtype != want]
+    if wrong:
+        raise ValueError(f"wrong column dtypes: {'; '.join(wrong[:3])}" + (f" and {len(wrong) - 3} more"
+                                                                           if len(wrong) > 3 else ""))
+    n, fps = _frame_clock(config)
+    if len(frames) != n:
+        raise ValueError(f"it holds {len(frames)} frames, its config has {n}")
+    k = np.arange(n)
+    index = frames["frame"].to_numpy()
+    if not np.array_equal(index, k):
+        first = int(np.flatnonzero(index != k)[0])
+        raise ValueError(f"row {first} is frame {index[first]}, not {first}")
+    t_s = frames["t_s"].to_numpy()
+    tolerance_s = 2.0 * np.finfo(float).eps * max((n - 1) / fps, 1.0 / fps)
+    off = ~(np.abs(t_s - k / fps) <= tolerance_s)  # NaN counts as off
+    if off.any():
+        first = int(np.flatnonzero(off)[0])
+        raise ValueError(f"frame {first} is at t_s = {float(t_s[first])!r} s, not {first}/{fps:g} Hz = "
+                         f"{first / fps!r} s (within {tolerance_s:.1e} s)")
+
+
+def _check_result(sent: TrackingConfig, result) -> None:
+    """Raise :class:`ResultMismatch` unless ``result`` is the result of ``sent`` with a valid table."""
+    if not isinstance(result, TrackingResult):
+        raise ResultMismatch(f"a worker returned a {type(result).__name__}, not a TrackingResult, for the run sent as "
+                             f"{sent.label} seed {sent.seed} (key {sent.key}); nothing of it is stored")
+    got = result.config
+    if not isinstance(got, TrackingConfig) or got != sent or got.key != sent.key:
+        what = f"{got.label} seed {got.seed} (key {got.key})" if isinstance(got, TrackingConfig) else repr(got)
+        raise ResultMismatch(f"a worker returned the result of {what} for the run sent as {sent.label} seed "
+                             f"{sent.seed} (key {sent.key}); nothing of it is stored")
     try:
-        write(tmp)
+        check_frames(result.frames, sent)
+    except ValueError as exc:
+        raise ResultMismatch(f"a worker's result for {sent.label} seed {sent.seed} (key {sent.key}) is not a valid "
+                             f"frame table: {exc}; nothing of it is stored") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# files: atomic writes, leftovers of killed writers, modes
+# ----------------------------------------------------------------------------------------------
+#: This machine, as it appears in temporary and claim files (a name that is safe in a file name).
+_HOST = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in socket.gethostname()) or "host"
+
+
+def _read_boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+_BOOT_ID = _read_boot_id()
+
+
+def _proc_stat(pid: int) -> tuple[str, int] | None:
+    """State and start time (clock ticks since boot) of process ``pid`` from Linux /proc, or None."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+        fields = text[text.rindex(")") + 2:].split()
+        return fields[0], int(fields[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _start_ticks(pid: int) -> int | None:
+    st = _proc_stat(pid)
+    return None if st is None else st[1]
+
+
+def _alive(pid: int, start: int | None = None) -> bool:
+    """Is process ``pid`` running (not a zombie and, given ``start``, the process that started then)?"""
+    if pid == os.getpid():
+        return start is None or start == _start_ticks(pid)
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):
+        return False
+    except PermissionError:
+        pass
+    st = _proc_stat(pid)
+    if st is None:  # no /proc here: kill(0) is all there is
+        return True
+    return st[0] not in ("Z", "X") and (start is None or st[1] == start)
+
+
+#: A temporary file of a writer on this machine whose process is gone is removed at once; one of
+#: another machine (a store on a network file system), or of unknown origin, once it is older
+#: than this. A writer keeps its temporary file for the time it takes to write one table
+#: (milliseconds), so an hour is far beyond a write still in progress.
+TMP_MAX_AGE_S = 3600.0
+
+
+def _tmp_name(path: Path) -> Path:
+    """A temporary name beside ``path``, unique to this process and call: ``.NAME~HOST~PID~RANDOM.tmp``."""
+    return path.with_name(f".{path.name}~{_HOST}~{os.getpid()}~{secrets.token_hex(6)}.tmp")
+
+
+def _stale_tmp(name: str, mtime: float, now: float) -> bool:
+    """Is the temporary file ``name`` a leftover of a killed writer (see :data:`TMP_MAX_AGE_S`)?"""
+    if now - mtime > TMP_MAX_AGE_S:
+        return True
+    parts = name[:-len(".tmp")].rsplit("~", 3)
+    return len(parts) == 4 and parts[1] == _HOST and parts[2].isdigit() and not _alive(int(parts[2]))
+
+
+def _atomic_write(path: Path, data: bytes, mode: int = 0o644) -> None:
+    """Write ``data`` to a temporary file beside ``path`` (its name unique to this process and call,
+    created with O_EXCL, permissions ``mode``), then rename it over ``path``.
+
+    No fsync: a file torn by a power cut fails its digest on the next load and is recomputed."""
+    tmp = _tmp_name(path)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        try:
+            os.fchmod(fd, mode)
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+        finally:
+            os.close(fd)
         os.replace(tmp, path)
     except BaseException:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        except FileNotFoundError:
-            pass
         raise
+
+
+def _remove(path: Path) -> None:
+    """Remove a file, link or whole folder at ``path`` (nothing if there is none)."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _table_bytes(frames: pd.DataFrame) -> bytes:
+    """The Parquet file of a frame table, with page CRCs (pyarrow's ``write_page_checksum``)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    sink = pa.BufferOutputStream()
+    pq.write_table(pa.Table.from_pandas(frames, preserve_index=False), sink, write_page_checksum=True)
+    return sink.getvalue().to_pybytes()
+
+
+def _parse_table(data: bytes) -> pd.DataFrame:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    return pq.read_table(pa.BufferReader(data), page_checksum_verification=True).to_pandas()
+
+
+# ----------------------------------------------------------------------------------------------
+# the results store
+# ----------------------------------------------------------------------------------------------
+#: A claim's owner refreshes its claim files' times this often while it holds them, and a claim
+#: not refreshed for CLAIM_STALE_S is taken over (an owner on another machine, or a stopped one).
+CLAIM_REFRESH_S = 30.0
+CLAIM_STALE_S = 300.0
+#: How often a sweep looks whether runs claimed by another process have landed or been released.
+CLAIM_POLL_S = 0.5
 
 
 class ResultsStore:
@@ -85,11 +397,62 @@ class ResultsStore:
     read : bool
         False: never answer from disk (recompute everything) but still store what is computed.
 
+    Raises
+    ------
+    StoreError
+        ``root`` or ``root/runs`` cannot be created (a file of that name, no permission).
+
     Notes
     -----
-    The entry of a config is ``runs/<key>.parquet`` and ``runs/<key>.json`` with
-    key = SHA-256 of the config's fields and :func:`source_hash`. The sidecar is written last, so
-    an entry without one is incomplete and simply recomputed.
+    **Entries.** The entry of a config is ``runs/<key>.parquet`` and ``runs/<key>.json`` with
+    key = SHA-256 of the config's fields and :func:`source_hash`. The table is written first, the
+    sidecar last, so an entry without a sidecar is incomplete and simply recomputed.
+
+    **What is served.** :meth:`load` reads the sidecar (this format, this source hash, this
+    config), then the table's bytes, whose SHA-256 must equal the sidecar's ``table_sha256``
+    *before* they are parsed (the parsed bytes are the hashed ones), then checks the table against
+    the config (:func:`check_frames`: columns, dtypes, one row per frame, frame numbers and times).
+    Anything else is moved aside to ``NAME.corrupt`` (table and sidecar), named in a warning
+    (:mod:`warnings` and the ``gimbal_lab.runner`` log) and recomputed. A folder in place of a
+    file, or a file in place of ``runs``, is moved aside the same way.
+
+    **Page checksums.** Tables are written with Parquet page CRCs and read with their
+    verification on. A CRC covers one data page's bytes: it catches damage inside the pages, but
+    not in the footer (schema, column names, offsets, statistics), nor a page header, nor a whole
+    valid file put in another's place (a table copied over another run's carries valid CRCs). The
+    digest in the sidecar covers every byte and ties the table to its config, so it is the guard;
+    the CRCs let a table copied out of the store show page damage to any Parquet reader. Measured
+    without the digest, on 1,000 random single-bit flips and byte overwrites of one 35 kB table
+    (the campaign of ``tests/test_runner.py``): read without CRC verification, 47 loaded as valid
+    tables with other numbers; with it, none did, but 396 loaded unchanged (damage in statistics
+    or metadata) and the rest failed to parse or failed :func:`check_frames`. With the digest,
+    all 1,000 are caught before parsing.
+
+    **Two processes on one store.** A run is computed only by the process that *claims* it: an
+    O_EXCL-created ``runs/<key>.claim`` naming its owner (host, boot, pid, the pid's start time).
+    Others wait for the entry instead of computing it, and take the claim over when it is stale:
+    its owner is gone (same machine: the pid no longer runs or is another process; the machine
+    restarted), or the claim was not refreshed for :data:`CLAIM_STALE_S` (owners refresh their
+    claims every :data:`CLAIM_REFRESH_S` from a thread), which covers an owner on another machine.
+    A claim file rather than an ``fcntl`` lock per run because a sweep on a pool holds a claim on
+    every run it has queued (hundreds or thousands of them: one open file each would pass the usual
+    limit of 1024) and a claim stays visible on disk. A sweep in one process claims one run at a
+    time, so two of them share the work. Deciding a claim is stale and removing it happen under
+    an ``fcntl.flock`` on the ``runs`` folder, so two processes never both take one over. A wrong
+    judgement can only cost a run computed twice (deterministic, written atomically), never a
+    wrong table. Only the claim's holder moves an entry aside, after reading it once more.
+
+    **Leftovers.** Temporary files of writers killed mid-write are removed when a store is
+    opened: at once when their writer (named in the file name) ran on this machine and is gone,
+    otherwise once older than :data:`TMP_MAX_AGE_S` (no write lasts that long), so a file that is
+    being written is never touched.
+
+    **Permissions.** Entries get read permission for the group and for others exactly when the
+    ``runs`` folder grants it to them (the owner reads and writes): a store folder made
+    group-readable (``chmod g+rx`` or a setgid group folder) shares its runs with the group
+    whatever the writer's umask, and one made with umask 077 stays private. A ``runs`` folder the
+    store creates gets the permission bits of the store folder; the store folder itself is made
+    with the umask.
     """
 
     def __init__(self, root, read: bool = True):
@@ -99,11 +462,76 @@ class ResultsStore:
             raise ValueError(f"store root must be a non-empty path, got {root!r}")
         self.root = Path(root)
         self.runs = self.root / "runs"
-        self.runs.mkdir(parents=True, exist_ok=True)
+        self._claims: dict[str, tuple[Path, str]] = {}  # key -> (claim file, its token)
+        self._claims_guard = threading.Lock()
+        self._heartbeat: threading.Thread | None = None
+        self._open()
 
     def __repr__(self) -> str:
         return f"ResultsStore({str(self.root)!r})"
 
+    def __getstate__(self):
+        state = self.__dict__.copy()  # claims belong to the process holding them
+        state.update(_claims={}, _claims_guard=None, _heartbeat=None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._claims_guard = threading.Lock()
+
+    # -- opening --------------------------------------------------------------------------------
+    def _open(self) -> None:
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(self.root, exc, "create") from exc
+        if os.path.lexists(self.runs) and not self.runs.is_dir():
+            self._move_aside([self.runs], self.runs, "is not a folder", then="every run is looked up anew")
+        if not self.runs.is_dir():
+            try:
+                self.runs.mkdir()
+                os.chmod(self.runs, stat.S_IMODE(self.root.stat().st_mode))
+            except FileExistsError:
+                pass  # made by another process meanwhile
+            except OSError as exc:
+                raise StoreError(self.runs, exc, "create") from exc
+        self._clean_leftovers()
+
+    def _entry_mode(self) -> int:
+        """Permissions of a new entry: rw for the owner, r for group and others where ``runs`` grants r."""
+        try:
+            return 0o600 | (stat.S_IMODE(self.runs.stat().st_mode) & 0o044)
+        except OSError:
+            return 0o600
+
+    def _clean_leftovers(self) -> None:
+        """Remove temporary files of killed writers and claims of processes that are gone."""
+        now = time.time()
+        try:
+            entries = list(os.scandir(self.runs))
+        except OSError:
+            return
+        stale_claims = []
+        for entry in entries:
+            name = entry.name
+            try:
+                if name.startswith(".") and name.endswith(".tmp") and entry.is_file(follow_symlinks=False):
+                    if _stale_tmp(name, entry.stat(follow_symlinks=False).st_mtime, now):
+                        os.unlink(entry.path)
+                        log.info("results store: removed %s, left by a writer that is gone", entry.path)
+                elif name.endswith(".claim"):
+                    stale_claims.append(Path(entry.path))
+            except OSError:
+                continue  # gone meanwhile, or a store we may only read
+        if stale_claims:
+            with contextlib.suppress(OSError):
+                with self._claims_lock():
+                    for path in stale_claims:
+                        if _claim_is_stale(path):
+                            with contextlib.suppress(OSError):
+                                path.unlink()
+
+    # -- keys and paths -------------------------------------------------------------------------
     @staticmethod
     def key(config: TrackingConfig) -> str:
         text = json.dumps({"config": config.to_dict(), "source": source_hash()}, sort_keys=True)
@@ -115,65 +543,265 @@ class ResultsStore:
 
     def __contains__(self, config: TrackingConfig) -> bool:
         table, sidecar = self.paths(config)
-        return table.exists() and sidecar.exists()
+        return table.is_file() and sidecar.is_file()
 
+    # -- reading --------------------------------------------------------------------------------
     def load(self, config: TrackingConfig) -> TrackingResult | None:
-        """The stored result of ``config``, or None (missing, incomplete, corrupt or foreign)."""
+        """The stored result of ``config``, or None: missing or incomplete (silently), or failing a
+        check (then moved aside to ``NAME.corrupt`` with a warning naming the file and why)."""
+        if not self.read:
+            return None
+        result, problem = self._read(config)
+        if problem is None:
+            return result
+        # Move it aside only while holding the run's claim, after reading it again: another
+        # process may be writing this very entry (its table replaced, its sidecar not yet).
+        held = self.holds(config)  # run() claims a run before it looks again
+        try:
+            claimed = True if held else self.claim(config)
+        except StoreError:
+            claimed = None  # a store we may only read: nobody writes here, and nothing can be moved
+        if claimed is False:
+            log.info("results store: %s %s, but another process holds its claim; leaving it to that process",
+                     *problem)
+            return None
+        try:
+            result, problem = self._read(config)
+            if problem is not None:
+                self._move_aside(self.paths(config), *problem)
+            return result
+        finally:
+            if claimed and not held:
+                self.release(config)
+
+    def _read(self, config: TrackingConfig):
+        """``(result, None)``, ``(None, None)`` when absent or incomplete, or ``(None, (path, why))``."""
         table, sidecar = self.paths(config)
-        if not self.read or not sidecar.exists():
-            return None
         try:
-            meta = json.loads(sidecar.read_text())
-            if not isinstance(meta, dict) or meta.get("format") != STORE_FORMAT:
-                raise ValueError("not a results-store sidecar of this format")
-            if meta.get("source_hash") != source_hash() or meta.get("config") != json.loads(
-                json.dumps(config.to_dict())
-            ):
-                raise ValueError("it describes another config or another package source")
-        except Exception as exc:  # an unreadable entry is recomputed, never trusted
-            self._warn(sidecar, exc)
-            return None
+            text = sidecar.read_bytes()
+        except FileNotFoundError:
+            return None, None
+        except OSError as exc:
+            return None, (sidecar, f"cannot be read ({exc.strerror or exc})")
         try:
-            frames = pd.read_parquet(table)
+            meta = json.loads(text)
+        except ValueError as exc:  # UnicodeDecodeError included
+            return None, (sidecar, f"is not JSON ({exc})")
+        if not isinstance(meta, dict) or meta.get("format") != STORE_FORMAT:
+            found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+            return None, (sidecar, f"is not a results-store sidecar of format {STORE_FORMAT} (found {found!r})")
+        if meta.get("source_hash") != source_hash() or meta.get("config") != json.loads(json.dumps(config.to_dict())):
+            return None, (sidecar, "describes another config or another package source")
+        digest = meta.get("table_sha256")
+        if not isinstance(digest, str) or len(digest) != 64:
+            return None, (sidecar, "records no table digest")
+        try:
+            data = table.read_bytes()
+        except FileNotFoundError:
+            return None, (table, "is missing (its sidecar is there)")
+        except OSError as exc:
+            return None, (table, f"cannot be read ({exc.strerror or exc})")
+        if hashlib.sha256(data).hexdigest() != digest:
+            return None, (table, "does not match the SHA-256 its sidecar records (damaged, or another run's table)")
+        try:
+            frames = _parse_table(data)
+        except Exception as exc:  # noqa: BLE001 - any parse failure means the same: not served
+            return None, (table, f"cannot be parsed ({type(exc).__name__}: {exc})")
+        try:
+            check_frames(frames, config)
             if len(frames) != meta.get("frames"):
-                raise ValueError(f"it holds {len(frames)} frames, its sidecar says {meta.get('frames')}")
-        except Exception as exc:
-            self._warn(table, exc)
-            return None
-        return TrackingResult(config=config, frames=frames, timing=dict(meta.get("timing", {})))
+                raise ValueError(f"it holds {len(frames)} frames, its sidecar says {meta.get('frames')!r}")
+        except ValueError as exc:
+            return None, (table, f"does not fit its config: {exc}")
+        timing = meta.get("timing")
+        timing = dict(timing) if isinstance(timing, dict) else {}
+        return TrackingResult(config=config, frames=frames, timing=timing), None
 
-    @staticmethod
-    def _warn(path: Path, exc: Exception) -> None:
-        warnings.warn(f"results store: {path} is unreadable ({exc}); the run is recomputed", RuntimeWarning,
-                      stacklevel=3)
+    def _move_aside(self, paths, bad: Path, why: str, then: str = "the run is recomputed") -> None:
+        """Rename each of ``paths`` that exists to ``NAME.corrupt`` and warn, naming ``bad`` and ``why``."""
+        moved, failed = [], []
+        for path in paths:
+            if not os.path.lexists(path):
+                continue
+            aside = path.with_name(path.name + ".corrupt")
+            try:
+                _remove(aside)  # an earlier quarantine of the same entry
+                os.rename(path, aside)
+                moved.append(str(aside))
+            except OSError as exc:
+                failed.append(f"{path} ({exc.strerror or exc})")
+        where = f"moved aside to {' and '.join(moved)}" if moved else "left in place"
+        if failed:
+            where += f"; could not move {', '.join(failed)}"
+        message = f"results store: {bad} {why}; {where}; {then}"
+        if log.hasHandlers():  # e.g. the command line's run log (else logging would print it a second time)
+            log.warning(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
 
+    # -- writing --------------------------------------------------------------------------------
     def save(self, result: TrackingResult) -> None:
-        """Store ``result`` atomically (table first, sidecar last)."""
+        """Store ``result`` atomically (table first, sidecar last).
+
+        Raises
+        ------
+        ValueError
+            The frame table does not fit the config (:func:`check_frames`): nothing is written.
+        StoreError
+            A file cannot be written (read-only folder, disk full, ...).
+        """
         from . import __version__
 
+        check_frames(result.frames, result.config)
         table, sidecar = self.paths(result.config)
-        _atomic_write(table, lambda tmp: result.frames.to_parquet(tmp, index=False))
+        data = _table_bytes(result.frames)
         meta = {
             "format": STORE_FORMAT,
             "config": result.config.to_dict(),
             "label": result.config.label,
             "seed": result.config.seed,
             "frames": len(result.frames),
+            "table_sha256": hashlib.sha256(data).hexdigest(),
             "package_version": __version__,
             "source_hash": source_hash(),
             "timing": result.timing,
             "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
-        _atomic_write(sidecar, lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=1, sort_keys=True)))
+        mode = self._entry_mode()
+        for path, content in ((table, data), (sidecar, json.dumps(meta, indent=1, sort_keys=True).encode())):
+            if path.is_dir() and not path.is_symlink():
+                self._move_aside([path], path, "is a folder where a file should be")
+            try:
+                _atomic_write(path, content, mode)
+            except OSError as exc:
+                raise StoreError(path, exc) from exc
+
+    # -- claims ---------------------------------------------------------------------------------
+    def _claim_path(self, key: str) -> Path:
+        return self.runs / f"{key}.claim"
+
+    def _claims_lock(self):
+        """An exclusive ``flock`` on the ``runs`` folder: taking over or releasing a claim is one step."""
+        return _folder_lock(self.runs)
+
+    def claim(self, config: TrackingConfig) -> bool:
+        """Claim the run of ``config`` for this process: True when it is this store object's (now or
+        already), False while another live process holds it. A stale claim is taken over.
+
+        Raises
+        ------
+        StoreError
+            The claim file cannot be created (a store that cannot be written).
+        """
+        key = self.key(config)
+        with self._claims_guard:
+            if key in self._claims:
+                return True
+        path = self._claim_path(key)
+        token = secrets.token_hex(8)
+        record = json.dumps({"host": _HOST, "boot": _BOOT_ID, "pid": os.getpid(), "start": _start_ticks(os.getpid()),
+                             "token": token}).encode()
+        for attempt in range(2):
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            except FileExistsError:
+                if attempt == 1 or not self._take_over_if_stale(path):
+                    return False
+                continue
+            except OSError as exc:
+                raise StoreError(path, exc) from exc
+            try:
+                os.fchmod(fd, self._entry_mode())
+                os.write(fd, record)
+            finally:
+                os.close(fd)
+            with self._claims_guard:
+                self._claims[key] = (path, token)
+                if self._heartbeat is None:
+                    self._heartbeat = threading.Thread(target=self._refresh_claims, name="gimbal-lab store claims",
+                                                       daemon=True)
+                    self._heartbeat.start()
+            return True
+        return False
+
+    def _take_over_if_stale(self, path: Path) -> bool:
+        """Remove the claim at ``path`` if it is stale; True if it is gone (removed or released)."""
+        try:
+            with self._claims_lock():
+                if not _claim_is_stale(path):
+                    return False
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+                log.info("results store: took over %s, whose owner is gone", path)
+                return True
+        except OSError as exc:
+            raise StoreError(path, exc) from exc
+
+    def holds(self, config: TrackingConfig) -> bool:
+        """Does this store object hold the claim of ``config``?"""
+        with self._claims_guard:
+            return self.key(config) in self._claims
+
+    def release(self, config: TrackingConfig) -> None:
+        """Give up this object's claim on ``config`` (nothing if it holds none)."""
+        with self._claims_guard:
+            held = self._claims.pop(self.key(config), None)
+        if held is not None:
+            self._release(*held)
+
+    def release_all(self) -> None:
+        """Give up every claim this object holds."""
+        with self._claims_guard:
+            held, self._claims = list(self._claims.values()), {}
+        for path, token in held:
+            self._release(path, token)
+
+    def _release(self, path: Path, token: str) -> None:
+        try:
+            with self._claims_lock():
+                if _read_claim(path).get("token") == token:  # not taken over meanwhile
+                    path.unlink()
+        except OSError as exc:
+            log.warning("results store: could not remove the claim %s (%s)", path, exc)
+
+    def _refresh_claims(self) -> None:
+        """Heartbeat thread: touch every held claim each CLAIM_REFRESH_S; end when none is held."""
+        while True:
+            time.sleep(CLAIM_REFRESH_S)
+            with self._claims_guard:
+                held = list(self._claims.values())
+                if not held:
+                    self._heartbeat = None
+                    return
+            for path, _ in held:
+                with contextlib.suppress(OSError):
+                    os.utime(path)
 
 
-class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C stopped :func:`run`; ``kept`` of ``total`` runs are finished (and stored)."""
+def _read_claim(path: Path) -> dict:
+    try:
+        owner = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        return {}
+    return owner if isinstance(owner, dict) else {}
 
-    def __init__(self, kept: int, total: int, store: ResultsStore | None):
-        self.kept, self.total, self.store = kept, total, store
-        where = f" in {store.root}" if store is not None else " (no store: they are lost)"
-        super().__init__(f"interrupted: {kept} of {total} runs finished and kept{where}")
+
+def _claim_is_stale(path: Path) -> bool:
+    """Is the claim at ``path`` one nobody holds any more (see :class:`ResultsStore`, Notes)?"""
+    try:
+        age_s = time.time() - path.stat().st_mtime
+    except FileNotFoundError:
+        return True
+    if age_s > CLAIM_STALE_S:
+        return True
+    owner = _read_claim(path)  # {} while its owner is still writing it: judged by age alone
+    if owner.get("host") != _HOST:
+        return False
+    if owner.get("boot") != _BOOT_ID:
+        return True  # this machine restarted since
+    pid, start = owner.get("pid"), owner.get("start")
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return False
+    return not _alive(pid, start if isinstance(start, int) else None)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -246,10 +874,6 @@ def _renderer_for(config: TrackingConfig):
     return renderer
 
 
-class SourceMismatch(RuntimeError):
-    """A worker runs other gimbal_lab code than the process that keys and stores its results."""
-
-
 def _run_one(config: TrackingConfig, source: str | None = None) -> TrackingResult:
     """What a worker does for one config (module-level so any executor can pickle it). ``source``:
     the submitting process's :func:`source_hash`, which the worker's own must equal (a cluster's
@@ -259,7 +883,8 @@ def _run_one(config: TrackingConfig, source: str | None = None) -> TrackingResul
     if source is not None and source != source_hash():
         raise SourceMismatch(
             f"a worker (pid {os.getpid()}) runs gimbal_lab source {source_hash()[:12]}, the sweep's is "
-            f"{source[:12]}: install the same gimbal-lab on every worker (pip install of the same checkout)")
+            f"{source[:12]}: install the same gimbal-lab on every worker (pip install of the same checkout)",
+            source_hash(), source)
     return simulate(config, renderer=_renderer_for(config))
 
 
@@ -365,7 +990,8 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
     configs : sequence of TrackingConfig
         Duplicates are run once.
     store : ResultsStore, path or None
-        Where finished runs are kept and looked up (None: nothing is stored).
+        Where finished runs are kept and looked up (None: nothing is stored). Runs another process
+        has claimed in the same store are waited for, not computed again (see :class:`ResultsStore`).
     executor : concurrent.futures.Executor, optional
         Where runs go (e.g. :func:`dask_executor`). Default: a local pool of ``jobs`` spawned
         worker processes, or this process when ``jobs == 1`` (which then holds a GL context and
@@ -379,6 +1005,11 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
     ------
     RunInterrupted
         On Ctrl-C, after stopping the workers; every run finished so far is in the store.
+    SweepFailed
+        :class:`WorkersDied`, :class:`SourceMismatch` or :class:`ResultMismatch`, after stopping
+        the workers; the message says how many runs are kept and how to resume.
+    StoreError
+        The store cannot be written (checked before anything is computed).
     """
     if isinstance(configs, (TrackingConfig, str, bytes)) or not hasattr(configs, "__iter__"):
         raise TypeError(f"configs must be a sequence of TrackingConfig objects, got {type(configs).__name__}")
@@ -403,61 +1034,124 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
     todo.sort(key=lambda c: (-c.n_frames, c.target != "aruco"))
 
     bar = None
-    if progress and todo:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=sum(c.n_frames for c in todo), desc=desc, unit="frame", dynamic_ncols=True)
     done = 0
     saving = None  # the run being stored: Ctrl-C may land after its files are written, before it is counted
 
-    def finish(config, result):
-        nonlocal done, saving
-        saving = config
-        if store is not None:
-            store.save(result)
-        unique[config] = result  # only now: a run counts as kept once it is stored
-        saving = None
+    def count(config, result):
+        nonlocal done
         done += 1
-        seconds = result.timing.get("total_s", float("nan"))
-        log.info("%s seed %d: %d frames in %.1f s", config.label, config.seed, len(result.frames), seconds)
         if bar is not None:
             bar.update(len(result.frames))
             bar.set_postfix_str(f"{done}/{len(todo)} runs")
+
+    def finish(config, result):
+        nonlocal saving
+        _check_result(config, result)
+        saving = config
+        if store is not None:
+            store.save(result)
+            store.release(config)
+        unique[config] = result  # only now: a run counts as kept once it is stored
+        saving = None
+        seconds = result.timing.get("total_s", float("nan"))
+        log.info("%s seed %d: %d frames in %.1f s", config.label, config.seed, len(result.frames), seconds)
+        count(config, result)
+
+    def take_over(waiting, first_only=False):
+        """Claim the runs of ``waiting`` that no other process holds (any more): each is loaded
+        from the store if it landed meanwhile (counted here), or returned to be computed (with
+        ``first_only``, the first such one); the rest stay in ``waiting``."""
+        ours = []
+        for c in list(waiting):
+            if not store.claim(c):
+                continue
+            waiting.remove(c)
+            result = store.load(c)
+            if result is None:
+                ours.append(c)
+                if first_only:
+                    break
+            else:
+                store.release(c)
+                unique[c] = result
+                count(c, result)
+        return ours
 
     pool = None
     futures: dict = {}
     # Workers spawn while this block submits; they inherit its environment (CHILD_THREAD_LIMITS).
     with _single_threaded_children() if executor is None else contextlib.nullcontext():
         try:
-            if executor is None and (jobs == 1 or len(todo) <= 1):
-                for c in todo:
-                    finish(c, _run_one(c))
+            # Claim before computing: runs another process holds are waited for, not computed
+            # twice; a store that cannot be written fails here, before any work. This process
+            # claims one run at a time (two such sweeps share the work); a pool, all it queues.
+            in_process = executor is None and (jobs == 1 or len(todo) <= 1)
+            waiting: list[TrackingConfig] = []
+            mine = todo
+            if store is not None and todo:
+                if store.read:
+                    waiting, mine = list(todo), []
+                    mine = take_over(waiting, first_only=in_process)
+                else:  # recompute everything, as asked, whoever else is computing it
+                    for c in todo:
+                        store.claim(c)
+            if progress and todo:
+                from tqdm.auto import tqdm
+
+                bar = tqdm(total=sum(c.n_frames for c in todo), desc=desc, unit="frame", dynamic_ncols=True)
+                bar.update(sum(len(unique[c].frames) for c in todo if unique[c] is not None))
+            if in_process:
+                while mine or waiting:
+                    for c in mine:
+                        finish(c, _run_one(c))
+                    mine = take_over(waiting, first_only=True) if waiting else []
+                    if waiting and not mine:
+                        time.sleep(CLAIM_POLL_S)
             elif todo:
-                pool = executor if executor is not None else _local_pool(min(jobs, len(todo)))
-                futures = {pool.submit(_run_one, c, source_hash()): c for c in todo}
-                pending = set(futures)
                 restarts = 0
-                while pending:
-                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                pending: set = set()
+
+                def submit(batch):
+                    nonlocal pool
+                    if batch and pool is None:
+                        pool = executor if executor is not None else _local_pool(min(jobs, len(todo)))
+                    for c in batch:
+                        fut = pool.submit(_run_one, c, source_hash())
+                        futures[fut] = c
+                        pending.add(fut)
+
+                submit(mine)
+                while pending or waiting:
+                    if pending:
+                        finished, pending = wait(pending, timeout=CLAIM_POLL_S if waiting else None,
+                                                 return_when=FIRST_COMPLETED)
+                    else:
+                        finished = set()
+                        time.sleep(CLAIM_POLL_S)
                     broken = [fut for fut in finished if isinstance(fut.exception(), BrokenProcessPool)]
                     for fut in finished:
                         if fut not in broken:
                             finish(futures[fut], fut.result())
-                    if not broken:
-                        continue
-                    # A local worker died: every queued run of that pool fails with it. The runs are
-                    # deterministic, so a new pool computes exactly what the dead one would have.
-                    if executor is not None or restarts >= MAX_POOL_RESTARTS:
-                        broken[0].result()
-                    restarts += 1
-                    _stop_pool(pool)
-                    unfinished = [c for c in todo if unique[c] is None]
-                    warnings.warn(f"a worker process died ({broken[0].exception()}); starting new workers for the "
-                                  f"{len(unfinished)} unfinished run(s), {MAX_POOL_RESTARTS - restarts} restart(s) "
-                                  "left", RuntimeWarning, stacklevel=2)
-                    pool = _local_pool(min(jobs, len(unfinished)))
-                    futures = {pool.submit(_run_one, c, source_hash()): c for c in unfinished}
-                    pending = set(futures)
+                    if broken:
+                        # A local worker died: every queued run of that pool fails with it. The runs
+                        # are deterministic, so a new pool computes exactly what the dead one would have.
+                        if executor is not None or restarts >= MAX_POOL_RESTARTS:
+                            raise WorkersDied(
+                                f"worker processes died {restarts + 1} time(s) in this sweep (last: "
+                                f"{broken[0].exception()}); "
+                                + (f"the runner gives up after {MAX_POOL_RESTARTS} new pools of workers"
+                                   if executor is None else "the executor it was given cannot be restarted"))
+                        restarts += 1
+                        _stop_pool(pool)
+                        futures.clear()
+                        unfinished = [c for c in todo if unique[c] is None and c not in waiting]
+                        warnings.warn(f"a worker process died ({broken[0].exception()}); starting new workers for "
+                                      f"the {len(unfinished)} unfinished run(s), {MAX_POOL_RESTARTS - restarts} "
+                                      "restart(s) left", RuntimeWarning, stacklevel=2)
+                        pool, pending = None, set()
+                        submit(unfinished)
+                    if waiting:
+                        submit(take_over(waiting))
         except BaseException as exc:
             # Ctrl-C or a failed run: stop the rest at once instead of computing runs nobody will see
             if pool is not None and executor is None:
@@ -470,13 +1164,32 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
                     unique[saving] = store.load(saving)  # stored whole before Ctrl-C landed, or None
                 kept = sum(r is not None for r in unique.values())
                 raise RunInterrupted(kept, len(unique), store) from None
+            if isinstance(exc, SweepFailed) and exc.kept is None:
+                kept = sum(r is not None for r in unique.values())
+                raise exc._stopped(kept, len(unique), store, _failure_message(exc, kept, len(unique), store))
             raise
         finally:
+            if store is not None:
+                store.release_all()
             if pool is not None and executor is None:
                 pool.shutdown(wait=True)
             if bar is not None:
                 bar.close()
     return [unique[c] for c in configs]
+
+
+def _failure_message(exc: SweepFailed, kept: int, total: int, store) -> str:
+    """``exc``'s message, with what is kept and how to resume."""
+    if isinstance(exc, SourceMismatch) and exc.sweep_source and exc.worker_source:
+        now = _hash_package()
+        if now != exc.sweep_source and now == exc.worker_source:
+            # The package's files were edited while the sweep ran: the workers started later read the edit.
+            where = "" if store is None else f" and kept in {store.root} under the source the sweep started with"
+            return (f"gimbal_lab's files changed during the sweep (now source {now[:12]}, the sweep's "
+                    f"{exc.sweep_source[:12]}; a file edited while it ran?): {kept} of {total} runs are "
+                    f"finished{where}; run the same command again: it computes every run with the code as it is now "
+                    "(the kept runs are reused only if the sweep's source is restored)")
+    return f"{exc.args[0]}; {_resume_hint(kept, total, store)}"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -489,6 +1202,13 @@ class staged_folder:
     ``path`` is moved aside, ``tmp`` renamed to ``path`` and the old one deleted; on any error
     (Ctrl-C included) ``tmp`` is deleted and ``path`` is left as it was. Leftovers of a killed
     process are removed the next time.
+
+    Several writers of one ``path`` at once (two reports finishing at the same instant, in
+    processes or threads) each end with a whole folder in place, the last one's: the sibling
+    names are unique to each call (``.NAME.staging-RANDOM-PID``), and the two renames of a swap
+    are made while holding an ``fcntl.flock`` on the parent folder, so no swap sees another's
+    half done. Where the parent folder cannot be locked (some network file systems), a swap that
+    finds the folder moved or replaced under it retries.
     """
 
     def __init__(self, path):
@@ -496,43 +1216,55 @@ class staged_folder:
         if not isinstance(path, str) or not path.strip():
             raise ValueError(f"output folder must be a non-empty path, got {path!r}")
         self.path = Path(path)
-        self.staging = self.path.parent / f".{self.path.name}.staging-{os.getpid()}"
-        self.old = self.path.parent / f".{self.path.name}.old-{os.getpid()}"
+        unique = f"{secrets.token_hex(4)}-{os.getpid()}"  # the pid last: leftovers of dead processes are found by it
+        self.staging = self.path.parent / f".{self.path.name}.staging-{unique}"
+        self.old = self.path.parent / f".{self.path.name}.old-{unique}"
 
     def __enter__(self) -> Path:
-        import shutil
-
         self.path.parent.mkdir(parents=True, exist_ok=True)
         for leftover in self.path.parent.glob(f".{self.path.name}.*-*"):
             pid = leftover.name.rsplit("-", 1)[-1]
             if pid.isdigit() and not _alive(int(pid)):
                 shutil.rmtree(leftover, ignore_errors=True)
-        shutil.rmtree(self.staging, ignore_errors=True)
         self.staging.mkdir()
         return self.staging
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        import shutil
-
         if exc_type is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
             return
-        if self.path.exists():
-            os.rename(self.path, self.old)
-        os.rename(self.staging, self.path)
+        with _folder_lock(self.path.parent):
+            for attempt in range(20):
+                with contextlib.suppress(FileNotFoundError):
+                    os.rename(self.path, self.old)  # gone already: another writer's swap is between its renames
+                try:
+                    os.rename(self.staging, self.path)
+                    break
+                except OSError:  # another writer put its folder in place meanwhile (no lock)
+                    if not self.path.is_dir() or attempt == 19:
+                        raise
+                    shutil.rmtree(self.old, ignore_errors=True)
         shutil.rmtree(self.old, ignore_errors=True)
 
 
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Hold an exclusive ``flock`` on ``folder`` (nothing where the file system cannot lock it)."""
+    import fcntl
+
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:
+            pass
+        yield
+    finally:
+        os.close(fd)
 
 
 if sys.platform == "win32":  # pragma: no cover - the lab targets Linux servers

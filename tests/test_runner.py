@@ -9,12 +9,15 @@ on two cores; the subprocess tests run real spawned worker pools.
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import io
 import json
 import logging
 import os
 import re
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import textwrap
@@ -23,6 +26,7 @@ import warnings
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
 import pandas as pd
 import pytest
 from pandas.testing import assert_frame_equal
@@ -136,10 +140,14 @@ def test_duplicates_run_once_and_results_keep_input_order(monkeypatch):
 
 
 def _corrupt(kind: str, store: ResultsStore, c: TrackingConfig, other: TrackingConfig) -> Path:
-    """Damage the stored entry of ``c``; return the file the warning must name."""
+    """Damage the stored entry of ``c`` (``other`` is a stored run of the same length); return the
+    file the warning must name."""
     table, sidecar = store.paths(c)
     if kind == "garbage sidecar":
         sidecar.write_text("{ this is not JSON")
+        return sidecar
+    if kind == "sidecar not text":
+        sidecar.write_bytes(b"\xff\xfe\x00garbage")
         return sidecar
     if kind == "sidecar of another format":
         sidecar.write_text(json.dumps([1, 2, 3]))
@@ -149,6 +157,9 @@ def _corrupt(kind: str, store: ResultsStore, c: TrackingConfig, other: TrackingC
         shutil.copyfile(other_sidecar, sidecar)
         shutil.copyfile(other_table, table)
         return sidecar
+    if kind == "table of another run":  # same length, valid Parquet, valid page checksums
+        shutil.copyfile(store.paths(other)[0], table)
+        return table
     if kind == "truncated parquet":
         data = table.read_bytes()
         table.write_bytes(data[: len(data) // 2])
@@ -162,22 +173,44 @@ def _corrupt(kind: str, store: ResultsStore, c: TrackingConfig, other: TrackingC
     if kind == "parquet missing":
         table.unlink()
         return table
+    if kind == "folder in place of the table":
+        table.unlink()
+        (table / "x").mkdir(parents=True)
+        return table
+    if kind == "folder in place of the sidecar":
+        sidecar.unlink()
+        (sidecar / "x").mkdir(parents=True)
+        return sidecar
     raise AssertionError(kind)
 
 
-@pytest.mark.parametrize("kind", ["garbage sidecar", "sidecar of another format", "sidecar of another config",
-                                  "truncated parquet", "empty parquet", "parquet with fewer frames",
-                                  "parquet missing"])
-def test_corrupt_entry_warns_naming_the_file_and_is_recomputed(tmp_path, monkeypatch, kind):
+def _aside(path: Path) -> Path:
+    return path.with_name(path.name + ".corrupt")
+
+
+@pytest.mark.parametrize("kind", ["garbage sidecar", "sidecar not text", "sidecar of another format",
+                                  "sidecar of another config", "table of another run", "truncated parquet",
+                                  "empty parquet", "parquet with fewer frames", "parquet missing",
+                                  "folder in place of the table", "folder in place of the sidecar"])
+def test_corrupt_entry_is_moved_aside_with_a_warning_and_recomputed(tmp_path, monkeypatch, kind):
     c, other = cfg(seed=9), cfg(seed=10)
     store = ResultsStore(tmp_path / "store")
     clean = run([c, other], store=store, jobs=1, progress=False)
     bad = _corrupt(kind, store, c, other)
+    table, sidecar = store.paths(c)
+    damaged = bad.read_bytes() if bad.is_file() else None
 
-    with pytest.warns(RuntimeWarning, match=re.escape(str(bad))):
+    with pytest.warns(RuntimeWarning, match=re.escape(str(bad))) as caught:
         assert store.load(c) is None
+    assert len(caught) == 1 and "the run is recomputed" in str(caught[0].message)
+    # moved aside, both files of the entry (the one that failed kept as it was, for a post-mortem)
+    assert not os.path.lexists(table) and not os.path.lexists(sidecar) and _aside(sidecar).exists()
+    assert _aside(table).exists() == (kind != "parquet missing")
+    assert damaged is None or _aside(bad).read_bytes() == damaged
+
     calls = count_runs(monkeypatch)
-    with pytest.warns(RuntimeWarning, match=re.escape(str(bad))):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing left to warn about: the run is simply missing
         [again] = run([c], store=store, jobs=1, progress=False)
     assert calls == [c]  # recomputed, not served
     assert_frame_equal(again.frames, clean[0].frames, check_exact=True)
@@ -187,6 +220,148 @@ def test_corrupt_entry_warns_naming_the_file_and_is_recomputed(tmp_path, monkeyp
         warnings.simplefilter("error")
         assert_frame_equal(store.load(c).frames, clean[0].frames, check_exact=True)
         assert_frame_equal(store.load(other).frames, clean[1].frames, check_exact=True)
+
+
+def test_a_corrupt_entry_met_by_a_sweep_is_recomputed_with_one_warning(tmp_path, monkeypatch):
+    c = cfg(seed=14)
+    store = ResultsStore(tmp_path / "store")
+    [clean] = run([c], store=store, jobs=1, progress=False)
+    bad = _corrupt("truncated parquet", store, c, None)
+    calls = count_runs(monkeypatch)
+    with pytest.warns(RuntimeWarning, match=re.escape(str(bad))) as caught:
+        [again] = run([c], store=store, jobs=1, progress=False)
+    assert len([w for w in caught if "results store" in str(w.message)]) == 1
+    assert calls == [c]
+    assert_frame_equal(again.frames, clean.frames, check_exact=True)
+
+
+def test_an_entry_another_process_is_writing_is_left_to_it(tmp_path):
+    """A corrupt-looking entry whose run another process has claimed may be half replaced by that
+    process: it is not served and not moved aside; once the claim is released it is."""
+    c = cfg(seed=29)
+    store, other = ResultsStore(tmp_path / "store"), ResultsStore(tmp_path / "store")
+    run([c], store=store, jobs=1, progress=False)
+    bad = _corrupt("truncated parquet", store, c, None)
+    assert other.claim(c)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert store.load(c) is None
+    assert bad.exists() and not _aside(bad).exists()
+    other.release(c)
+    with pytest.warns(RuntimeWarning, match=re.escape(str(bad))):
+        assert store.load(c) is None
+    assert _aside(bad).exists()
+
+
+def _forge(store: ResultsStore, c: TrackingConfig, frames: pd.DataFrame) -> Path:
+    """Store ``frames`` as the table of ``c`` with a sidecar that agrees (digest and row count), as
+    a writer with a bug would: only the checks of the table against the config can catch it."""
+    table, sidecar = store.paths(c)
+    buffer = io.BytesIO()
+    frames.to_parquet(buffer, index=False)
+    data = buffer.getvalue()
+    table.write_bytes(data)
+    meta = json.loads(sidecar.read_text())
+    meta.update(table_sha256=hashlib.sha256(data).hexdigest(), frames=len(frames))
+    sidecar.write_text(json.dumps(meta))
+    return table
+
+
+def _nan_table(frames: pd.DataFrame) -> pd.DataFrame:
+    return pd.DataFrame(np.nan, index=frames.index, columns=frames.columns)
+
+
+#: Tables of the right length that are not what a run of the config makes; each must be caught
+#: by the schema or frame checks alone (the sidecar is forged to agree with the table).
+FORGED = {
+    "a column missing": (lambda f: f.drop(columns="true_z_m"), "missing 'true_z_m'"),
+    "an unknown column": (lambda f: f.assign(extra_m=1.0), "unknown 'extra_m'"),
+    "columns reordered": (lambda f: f[list(f.columns[::-1])], "another order"),
+    "strings in a column": (lambda f: f.assign(true_z_m=f["true_z_m"].astype(str)), "dtypes: true_z_m is "),
+    "all NaN": (_nan_table, "frame is float64, not int64"),
+    "booleans as integers": (lambda f: f.assign(detected=f["detected"].astype("int64")), "detected is int64"),
+    "fewer frames": (lambda f: f.iloc[:3], "holds 3 frames, its config has 6"),
+    "frames renumbered": (lambda f: f.assign(frame=f["frame"] + 1), "row 0 is frame 1"),
+    "a frame repeated": (lambda f: f.iloc[[0, 1, 1, 3, 4, 5]].reset_index(drop=True), "row 2 is frame 1"),
+    "times one frame late": (lambda f: f.assign(t_s=f["t_s"] + 1 / 30), "frame 0 is at t_s"),
+    "a time NaN": (lambda f: f.assign(t_s=f["t_s"].where(f["frame"] != 4)), "frame 4 is at t_s = nan"),
+}
+
+
+@pytest.mark.parametrize("kind", list(FORGED))
+def test_a_table_that_does_not_fit_its_config_is_never_served(tmp_path, monkeypatch, kind):
+    c = cfg(seed=15)
+    store = ResultsStore(tmp_path / "store")
+    [clean] = run([c], store=store, jobs=1, progress=False)
+    change, why = FORGED[kind]
+    table = _forge(store, c, change(clean.frames.copy()))
+    with pytest.warns(RuntimeWarning, match=re.escape(str(table)) + ".*does not fit its config.*" + re.escape(why)):
+        assert store.load(c) is None
+    assert _aside(table).exists() and not table.exists()
+    calls = count_runs(monkeypatch)
+    [again] = run([c], store=store, jobs=1, progress=False)
+    assert calls == [c]
+    assert_frame_equal(again.frames, clean.frames, check_exact=True)
+
+
+def test_frame_times_within_rounding_are_accepted():
+    """The tolerance on t_s admits k·(1/fps) (two roundings) besides k/fps, and nothing near a frame."""
+    c = cfg(seed=0, fps=30.0)
+    frames = pd.DataFrame({name: np.zeros(c.n_frames, dtype) for name, dtype in runner.frame_schema().items()})
+    k = np.arange(c.n_frames)
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps), c)
+    runner.check_frames(frames.assign(frame=k, t_s=k * (1.0 / c.fps)), c)
+    last = (c.n_frames - 1) / c.fps
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), np.spacing(last)]), c)
+    with pytest.raises(ValueError, match="frame 5 is at t_s"):
+        runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), 1e-9]), c)
+
+
+def test_the_frame_schema_is_the_simulations(reference):
+    """Oracle: the frame tables the simulation makes (sphere and marker, lenses, modes)."""
+    for result in reference:
+        assert dict(result.frames.dtypes) == runner.frame_schema()
+        runner.check_frames(result.frames, result.config)
+
+
+def test_damaged_tables_are_never_served(tmp_path):
+    """The campaign of issue 27: random single-bit flips and byte overwrites anywhere in a stored
+    table. Read without the digest and without page-CRC verification (as the store did before),
+    15 of these 200 loaded as valid tables with other numbers; with the CRCs alone none did, but
+    68 loaded unchanged. Every one must now be detected by the digest (the bytes always change),
+    moved aside and named in a warning."""
+    c, other = cfg(seed=16), cfg(seed=17)
+    store = ResultsStore(tmp_path / "store")
+    clean, _ = run([c, other], store=store, jobs=1, progress=False)
+    table, sidecar = store.paths(c)
+    original, original_sidecar = table.read_bytes(), sidecar.read_bytes()
+    rng = np.random.default_rng(27)
+    detected = 0
+    for i in range(200):
+        data = bytearray(original)
+        at = int(rng.integers(len(data)))
+        if i % 2:
+            data[at] ^= 1 << int(rng.integers(8))
+        else:
+            data[at] = (data[at] + int(rng.integers(1, 256))) % 256
+        table.write_bytes(bytes(data))
+        sidecar.write_bytes(original_sidecar)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            loaded = store.load(c)
+        if loaded is not None:  # served: it must be the original table, not other numbers
+            assert_frame_equal(loaded.frames, clean.frames, check_exact=True)
+            continue
+        assert any(str(table) in str(w.message) for w in caught), (i, at)
+        assert _aside(table).read_bytes() == bytes(data) and not table.exists()
+        detected += 1
+    assert detected == 200
+
+    # the whole table of another run of the same length, valid Parquet with valid page checksums
+    shutil.copyfile(store.paths(other)[0], table)
+    sidecar.write_bytes(original_sidecar)
+    with pytest.warns(RuntimeWarning, match=re.escape(str(table)) + ".*does not match the SHA-256"):
+        assert store.load(c) is None
 
 
 def test_incomplete_entry_without_sidecar_is_recomputed_silently(tmp_path, monkeypatch):
@@ -229,6 +404,252 @@ def test_store_is_keyed_by_the_source_hash(tmp_path, monkeypatch):
     shutil.copyfile(old_table, new_table)
     with pytest.warns(RuntimeWarning, match=re.escape(str(new_sidecar))):
         assert store.load(c) is None
+
+
+def test_a_runs_folder_that_is_a_file_is_moved_aside(tmp_path, monkeypatch):
+    root = tmp_path / "store"
+    root.mkdir()
+    (root / "runs").write_text("not a folder")
+    with pytest.warns(RuntimeWarning, match=re.escape(str(root / "runs")) + " is not a folder"):
+        store = ResultsStore(root)
+    assert (root / "runs").is_dir() and (root / "runs.corrupt").read_text() == "not a folder"
+    c = cfg(seed=18)
+    calls = count_runs(monkeypatch)
+    [result] = run([c], store=store, jobs=1, progress=False)
+    assert calls == [c] and c in store
+
+
+@contextlib.contextmanager
+def _unwritable(folder: Path):
+    """``folder`` cannot be written by this process: its write bits are removed, and when this
+    process is root (which ignores them) it acts as the unprivileged user ``nobody`` meanwhile."""
+    mode = folder.stat().st_mode
+    os.chmod(folder, 0o555)
+    try:
+        if os.geteuid() == 0:
+            os.setegid(65534)
+            os.seteuid(65534)
+            try:
+                yield
+            finally:
+                os.seteuid(0)
+                os.setegid(0)
+        else:
+            yield
+    finally:
+        os.chmod(folder, mode)
+
+
+@pytest.fixture
+def shared_tmp():
+    """A temporary folder every user can reach (pytest's tmp_path is private to its owner)."""
+    import tempfile
+
+    path = Path(tempfile.mkdtemp(prefix="gimbal-store-"))
+    path.chmod(0o755)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def test_a_read_only_store_serves_what_it_holds_and_refuses_to_compute_in_one_line(shared_tmp, monkeypatch):
+    stored, missing = cfg(seed=19), cfg(seed=20)
+    root = shared_tmp / "store"
+    [clean] = run([stored], store=root, jobs=1, progress=False)
+    (root / "runs").chmod(0o755)
+    source_hash()  # computed once per process; nobody could not read every file of the package
+    calls = count_runs(monkeypatch)
+    with _unwritable(root / "runs"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            [served] = run([stored], store=root, jobs=1, progress=False)
+        with pytest.raises(runner.StoreError) as caught:
+            run([stored, missing], store=root, jobs=1, progress=False)
+    assert_frame_equal(served.frames, clean.frames, check_exact=True)
+    assert calls == []  # refused before computing anything
+    message = str(caught.value)
+    assert "\n" not in message and str(root / "runs") in message and "Permission denied" in message, message
+    assert message.startswith("results store: cannot write ") and "make the folder writable" in message
+
+    # a store folder that cannot be made: the same error type, naming the folder
+    with _unwritable(shared_tmp):
+        with pytest.raises(runner.StoreError, match=re.escape(str(shared_tmp / "other")) + ".*Permission denied"):
+            ResultsStore(shared_tmp / "other")
+    (shared_tmp / "file").write_text("x")
+    with pytest.raises(runner.StoreError, match=r"cannot create .*file.*(File exists|Not a directory)"):
+        ResultsStore(shared_tmp / "file")
+
+
+@pytest.mark.parametrize("mode", [0o700, 0o750, 0o755, 0o2770], ids=oct)
+def test_entries_are_readable_by_whom_the_runs_folder_is(tmp_path, mode):
+    root = tmp_path / "store"
+    root.mkdir()
+    root.chmod(mode)
+    old_umask = os.umask(0o077)  # a private umask must not hide runs from a group the folder is shared with
+    try:
+        store = ResultsStore(root)
+        c = cfg(seed=21)
+        run([c], store=store, jobs=1, progress=False)
+    finally:
+        os.umask(old_umask)
+    assert stat.S_IMODE(store.runs.stat().st_mode) == mode & 0o7777  # runs made like its store folder
+    expected = 0o600 | (mode & 0o044)
+    for path in store.paths(c):
+        assert stat.S_IMODE(path.stat().st_mode) == expected, (oct(mode), path)
+
+
+def _dead_pid() -> int:
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    return dead.pid
+
+
+def test_temporary_files_of_killed_writers_are_removed_and_live_ones_kept(tmp_path):
+    store = ResultsStore(tmp_path / "store")
+    host, dead, live = runner._HOST, _dead_pid(), os.getppid()
+    files = {
+        f".a.parquet~{host}~{dead}~0a1b.tmp": False,  # its writer on this machine is gone
+        f".a.parquet~{host}~{live}~0a1b.tmp": True,  # a live writer's
+        f".a.json~otherhost~{dead}~0a1b.tmp": True,  # another machine's: judged by age only
+        ".b.parquet.x1y2z3.tmp": True,  # of unknown origin, recent
+        ".c.parquet.x1y2z3.tmp": False,  # of unknown origin, older than TMP_MAX_AGE_S
+        f".d.parquet~{host}~{live}~0a1b.tmp": False,  # live pid, but older than any write lasts
+    }
+    old_s = time.time() - runner.TMP_MAX_AGE_S - 60
+    for name in files:
+        (store.runs / name).write_bytes(b"partial")
+        if name.startswith((".c.", ".d.")):
+            os.utime(store.runs / name, (old_s, old_s))
+    ResultsStore(store.root)
+    left = {p.name for p in store.runs.iterdir()}
+    assert left == {name for name, kept in files.items() if kept}
+
+
+def _claim_record(**changes) -> dict:
+    pid = changes.get("pid", os.getpid())
+    record = {"host": runner._HOST, "boot": runner._BOOT_ID, "pid": pid, "start": runner._start_ticks(pid),
+              "token": "0" * 16}
+    return {**record, **changes}
+
+
+def test_claims_are_exclusive_and_stale_ones_are_taken_over(tmp_path):
+    c = cfg(seed=22)
+    a, b = ResultsStore(tmp_path / "store"), ResultsStore(tmp_path / "store")
+    claim = a.runs / f"{a.key(c)}.claim"
+    assert a.claim(c) and a.claim(c) and a.holds(c)
+    owner = json.loads(claim.read_text())
+    assert owner["pid"] == os.getpid() and owner["host"] == runner._HOST
+    assert not b.claim(c)  # a live holder (another object of this process counts as another holder)
+    a.release(c)
+    assert not claim.exists() and b.claim(c)
+    b.release_all()
+    assert not claim.exists()
+
+    live = os.getppid()
+    cases = {
+        "a live process": (_claim_record(pid=live), 0, False),
+        "a dead process": (_claim_record(pid=_dead_pid(), start=None), 0, True),
+        "a reused pid": (_claim_record(pid=live, start=(runner._start_ticks(live) or 0) + 1), 0, True),
+        "this machine before a restart": (_claim_record(pid=live, boot="another boot"), 0, True),
+        "another machine, refreshed": (_claim_record(host="elsewhere"), 0, False),
+        "another machine, not refreshed": (_claim_record(host="elsewhere"), runner.CLAIM_STALE_S + 60, True),
+        "an owner still writing it": ({}, 0, False),
+        "an owner that died writing it": ({}, runner.CLAIM_STALE_S + 60, True),
+    }
+    for name, (record, age_s, stale) in cases.items():
+        claim.write_text(json.dumps(record) if record else "")
+        os.utime(claim, (time.time() - age_s,) * 2)
+        assert a.claim(c) == stale, name
+        assert claim.exists()
+        if stale:
+            assert json.loads(claim.read_text())["pid"] == os.getpid(), name
+            a.release(c)
+            assert not claim.exists()
+
+
+def test_a_claim_held_elsewhere_is_waited_for_then_reused(tmp_path, monkeypatch):
+    """A run another process claimed is not computed: the sweep waits and loads the entry once it
+    lands (here another store object plays the other process, finishing the run from a thread)."""
+    import threading
+
+    c, d = cfg(seed=23), cfg(seed=24)
+    other = ResultsStore(tmp_path / "store")
+    [result] = run([c], jobs=1, progress=False)  # computed without a store, as the other process would
+    assert other.claim(c)
+
+    def finish_later():
+        time.sleep(1.0)
+        other.save(result)
+        other.release(c)
+
+    monkeypatch.setattr(runner, "CLAIM_POLL_S", 0.05)
+    calls = count_runs(monkeypatch)
+    thread = threading.Thread(target=finish_later)
+    thread.start()
+    try:
+        got = run([c, d], store=tmp_path / "store", jobs=1, progress=False)
+    finally:
+        thread.join()
+    assert calls == [d]
+    assert_frame_equal(got[0].frames, result.frames, check_exact=True)
+    assert not list((tmp_path / "store" / "runs").glob("*.claim"))
+
+
+TWO_SWEEPS_SCRIPT = textwrap.dedent('''
+    import hashlib, json, os, sys, time
+    from pathlib import Path
+
+    from gimbal_lab import runner
+    from gimbal_lab.simulation import TrackingConfig
+
+    store, configs_path, log_path, go = sys.argv[1:5]
+    configs = [TrackingConfig.from_dict(d) for d in json.loads(Path(configs_path).read_text())]
+    original = runner._run_one
+
+    def recorded(config, source=None):
+        with open(log_path, "a") as log:
+            log.write(config.key + "\\n")
+        time.sleep(0.5)  # every run overlaps the other sweep's
+        return original(config, source)
+
+    runner._run_one = recorded
+    runner.CLAIM_POLL_S = 0.05
+    Path(log_path + ".ready").touch()
+    while not os.path.exists(go):
+        time.sleep(0.005)
+    results = runner.run(configs, store=store, jobs=1, progress=False)
+    digest = hashlib.sha256(b"".join(r.frames.to_numpy(dtype=float).tobytes() for r in results)).hexdigest()
+    print(json.dumps({"digest": digest}))
+''')
+
+
+def test_two_processes_on_one_store_compute_each_run_once(tmp_path):
+    configs = [cfg(seed=s) for s in range(25, 29)]
+    (tmp_path / "sweep.py").write_text(TWO_SWEEPS_SCRIPT)
+    (tmp_path / "configs.json").write_text(json.dumps([c.to_dict() for c in configs]))
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl", "LP_NUM_THREADS": "1"}
+    go = tmp_path / "go"
+    procs = [subprocess.Popen([sys.executable, str(tmp_path / "sweep.py"), str(tmp_path / "store"),
+                               str(tmp_path / "configs.json"), str(tmp_path / f"computed-{i}.txt"), str(go)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for i in range(2)]
+    deadline = time.monotonic() + 120
+    while not all((tmp_path / f"computed-{i}.txt.ready").exists() for i in range(2)):  # both past their imports
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs), [p.poll() for p in procs]
+        time.sleep(0.02)
+    go.touch()
+    outputs = [p.communicate(timeout=300) for p in procs]
+    for p, (out, err) in zip(procs, outputs):
+        assert p.returncode == 0, err
+    computed = [(tmp_path / f"computed-{i}.txt").read_text().split() if (tmp_path / f"computed-{i}.txt").exists()
+                else [] for i in range(2)]
+    assert sorted(computed[0] + computed[1]) == sorted(c.key for c in configs)  # each run once, by one of them
+    assert computed[0] and computed[1], computed  # both took part: the test did race them
+    digests = {json.loads(out.splitlines()[-1])["digest"] for out, _ in outputs}
+    assert len(digests) == 1  # both return the same tables
+    clean = run(configs, jobs=1, progress=False)
+    stored = ResultsStore(tmp_path / "store")
+    for result in clean:
+        assert_frame_equal(stored.load(result.config).frames, result.frames, check_exact=True)
+    assert not list(stored.runs.glob("*.claim")) and not list(stored.runs.glob(".*.tmp"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -659,6 +1080,63 @@ def test_staged_folder_keeps_the_old_folder_on_error(tmp_path, error):
     assert not missing.exists()
 
 
+def _finish_reports_together(out: str, tag: str, rounds: int, barrier, errors) -> None:
+    """One writer of ``out``: each round, write a whole report and leave the block at the same
+    instant as the other writers (a barrier); the first writer then checks the folder is whole."""
+    for r in range(rounds):
+        try:
+            barrier.wait()
+            with staged_folder(out) as tmp:
+                for i in range(4):
+                    (tmp / f"{i}.txt").write_text(f"{tag} {r}")
+                barrier.wait()
+        except Exception as exc:  # noqa: BLE001 - reported to the test
+            errors.append(f"{tag} round {r}: {exc!r}")
+        barrier.wait()
+        if tag == "0":
+            texts = {p.name: p.read_text() for p in Path(out).iterdir()}
+            writers = set(texts.values())
+            if sorted(texts) != ["0.txt", "1.txt", "2.txt", "3.txt"] or len(writers) != 1 or \
+                    not next(iter(writers)).endswith(f" {r}"):
+                errors.append(f"round {r}: a mixed or missing report {texts}")
+        barrier.wait()
+
+
+def _writer_process(out, tag, rounds, barrier, queue):
+    errors: list = []
+    _finish_reports_together(out, tag, rounds, barrier, errors)
+    queue.put(errors)
+
+
+@pytest.mark.parametrize("writers", ["processes", "threads"])
+def test_reports_finishing_at_the_same_instant_never_mix_or_fail(tmp_path, writers):
+    """Forced races: 3 writers leave ``staged_folder`` together, 60 times over; every swap must
+    succeed and the folder must always be one writer's whole report of that round."""
+    import multiprocessing
+    import threading
+
+    out, n, rounds = str(tmp_path / "report"), 3, 60
+    if writers == "threads":
+        barrier, errors = threading.Barrier(n), []
+        threads = [threading.Thread(target=_finish_reports_together, args=(out, str(i), rounds, barrier, errors))
+                   for i in range(n)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=120)
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        barrier, queue = ctx.Barrier(n, timeout=60), ctx.Queue()
+        procs = [ctx.Process(target=_writer_process, args=(out, str(i), rounds, barrier, queue)) for i in range(n)]
+        for p in procs:
+            p.start()
+        errors = [e for _ in procs for e in queue.get(timeout=180)]
+        for p in procs:
+            p.join(timeout=30)
+    assert errors == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]  # no staging or old copy left
+
+
 def test_staged_folder_removes_leftovers_of_dead_processes_only(tmp_path):
     out = tmp_path / "report"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -730,13 +1208,85 @@ def test_a_failing_run_stops_the_queued_ones(tmp_path, monkeypatch):
     assert not list((tmp_path / "s").rglob("*.parquet"))
 
 
-def test_a_worker_running_other_code_is_refused(monkeypatch, tmp_path):
-    """The sweep's source hash travels with each run; a worker whose own differs (another
-    gimbal-lab on a cluster's machine) refuses the run, naming both, and nothing is stored.
-    Here the spawned workers hash the real source and this process a patched one."""
+@pytest.mark.parametrize("story", ["files edited during the sweep", "other code on the workers"])
+def test_a_worker_running_other_code_is_refused(monkeypatch, tmp_path, story):
+    """The sweep's source hash travels with each run; a worker whose own differs refuses the run,
+    naming both, nothing of it is stored, and the error says what is kept and how to go on. Here
+    the spawned workers hash the real source and this process a patched one; when the package's
+    files on disk hash like the workers' (an edit after the sweep started) the message says so."""
     monkeypatch.setattr(runner, "source_hash", lambda: "f" * 64)
-    with pytest.raises(runner.SourceMismatch, match="runs gimbal_lab source [0-9a-f]{12}, the sweep's is ffffffffffff"):
-        run(CONFIGS[:2], store=tmp_path / "s", jobs=2, progress=False)
+    if story == "other code on the workers":
+        monkeypatch.setattr(runner, "_hash_package", lambda: "e" * 16)
+    store = tmp_path / "s"
+    run(CONFIGS[:1], store=store, jobs=1, progress=False)  # in this process: kept under the sweep's source
+    with pytest.raises(runner.SourceMismatch) as caught:
+        run(CONFIGS, store=store, jobs=2, progress=False)
+    message = str(caught.value)
+    assert isinstance(caught.value, runner.SweepFailed) and "\n" not in message
+    assert (caught.value.kept, caught.value.total) == (1, 3)
+    assert len(list((store / "runs").glob("*.parquet"))) == 1
+    if story == "other code on the workers":
+        assert re.search(r"a worker \(pid \d+\) runs gimbal_lab source [0-9a-f]{12}, the sweep's is ffffffffffff: "
+                         r"install the same gimbal-lab on every worker", message), message
+        assert message.endswith(f"1 of 3 runs are finished and kept in {store}; run the same command again to "
+                                "resume (it reuses them and computes the other 2)"), message
+    else:
+        now = runner._hash_package()[:12]
+        assert message.startswith(f"gimbal_lab's files changed during the sweep (now source {now}"
+                                  ", the sweep's ffffffffffff; a file edited while it ran?): 1 of 3 runs are finished "
+                                  f"and kept in {store} under the source the sweep started with; run the same command "
+                                  "again: it computes every run with the code as it is now"), message
+
+
+def _run_or_die(config, source=None):
+    """In a spawned worker: the real run, except for seeds >= 100, whose worker dies at once."""
+    if config.seed >= 100:
+        os._exit(3)
+    return runner._run_one(config, source)
+
+
+def test_workers_dying_again_and_again_stop_the_sweep_saying_what_is_kept(tmp_path, monkeypatch):
+    """Every pool breaks on the run whose worker dies; after MAX_POOL_RESTARTS new pools the sweep
+    stops with WorkersDied, its one-line message counting the runs kept (those in the store)."""
+    monkeypatch.setattr(runner, "_run_one", _run_or_die)
+    store = tmp_path / "s"
+    configs = [cfg(seed=80), cfg(seed=81), cfg(seed=100)]
+    with pytest.warns(RuntimeWarning, match="a worker process died"):
+        with pytest.raises(runner.WorkersDied) as caught:
+            run(configs, store=store, jobs=2, progress=False)
+    exc = caught.value
+    kept = len(list((store / "runs").glob("*.json")))
+    assert (exc.kept, exc.total) == (kept, 3)
+    message = str(exc)
+    assert "\n" not in message
+    assert message.startswith(f"worker processes died {runner.MAX_POOL_RESTARTS + 1} time(s) in this sweep"), message
+    assert message.endswith(f"{kept} of 3 runs are finished and kept in {store}; run the same command again to resume "
+                            f"(it reuses them and computes the other {3 - kept})"), message
+    assert not list((store / "runs").glob("*.claim"))
+
+
+def test_a_result_that_is_not_the_run_sent_is_refused_naming_both(tmp_path, monkeypatch):
+    """What a worker returns (here through a thread pool, as from a Dask cluster) is checked
+    against the config sent before anything is stored."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    sent, other = cfg(seed=90), cfg(seed=91)
+    [wrong] = run([other], jobs=1, progress=False)
+    monkeypatch.setattr(runner, "_run_one", lambda config, source=None: wrong)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        with pytest.raises(runner.ResultMismatch) as caught:
+            run([sent], store=tmp_path / "s", executor=pool, progress=False)
+    message = str(caught.value)
+    assert f"the result of {other.label} seed 91 (key {other.key})" in message, message
+    assert f"the run sent as {sent.label} seed 90 (key {sent.key})" in message, message
+    assert "0 of 1 runs are finished" in message and "\n" not in message
+    assert not list((tmp_path / "s").rglob("*.parquet"))
+
+    short = runner.TrackingResult(config=sent, frames=wrong.frames.iloc[:3], timing={})
+    monkeypatch.setattr(runner, "_run_one", lambda config, source=None: short)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        with pytest.raises(runner.ResultMismatch, match=f"key {sent.key}.*not a valid frame table: it holds 3 frames"):
+            run([sent], store=tmp_path / "s", executor=pool, progress=False)
     assert not list((tmp_path / "s").rglob("*.parquet"))
 
 
@@ -762,12 +1312,19 @@ def test_staged_folder_rejects_empty_paths(path):
         staged_folder(path)
 
 
-def test_run_interrupted_says_what_was_kept(tmp_path):
+def test_run_interrupted_says_what_was_kept_and_what_a_rerun_reuses(tmp_path):
     exc = RunInterrupted(2, 5, ResultsStore(tmp_path / "s"))
     assert isinstance(exc, KeyboardInterrupt)
     assert (exc.kept, exc.total) == (2, 5)
-    assert "2 of 5" in str(exc) and str(tmp_path / "s") in str(exc)
-    assert "lost" in str(RunInterrupted(0, 3, None))
+    assert str(exc) == (f"interrupted: 2 of 5 runs are finished and kept in {tmp_path / 's'}; run the same command "
+                        "again to resume (it reuses them and computes the other 3)")
+    # --no-cache (read=False): the same command would recompute everything; only a rerun without it reuses
+    exc = RunInterrupted(2, 5, ResultsStore(tmp_path / "s", read=False))
+    assert str(exc) == (f"interrupted: 2 of 5 runs are finished and kept in {tmp_path / 's'}; a rerun without "
+                        "--no-cache (read=True) reuses them and computes the other 3, while the same command, with "
+                        "--no-cache, recomputes all 5")
+    assert str(RunInterrupted(0, 3, None)) == ("interrupted: 0 of 3 runs finished but no store was given: they are "
+                                               "lost, and a rerun computes all 3")
 
 
 def test_source_hash_is_stable_hex():
