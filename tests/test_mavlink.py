@@ -31,6 +31,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink  # the oracle's parser, fresh per use
 
 import gimbal_lab
+from gimbal_lab.kinematics import GimbalKinematics
 from gimbal_lab.mavlink.device import LinkEffects, SimulatedGimbalDevice, firmware_version_word, simulated_gimbal
 from gimbal_lab.mavlink.driver import GimbalCommandFailed, GimbalLinkLost, GimbalNotFound, MavlinkGimbal
 from gimbal_lab.mavlink.link import FdLink, SerialLink, open_link
@@ -52,12 +53,12 @@ def free_udp_port() -> int:
 
 
 @contextmanager
-def running_device(*, body=None, duration_s=30.0, lockstep=True, **kwargs):
+def running_device(*, kinematics=None, body=None, duration_s=30.0, lockstep=True, **kwargs):
     """A device on udpin:127.0.0.1:<free port> served by a thread; yields (device, driver address,
     the event that stops it)."""
     effect_names = set(LinkEffects.__dataclass_fields__)
     effects = LinkEffects(**{k: kwargs.pop(k) for k in list(kwargs) if k in effect_names})
-    device = SimulatedGimbalDevice("udpin:127.0.0.1:0", simulated_gimbal(body=body, duration_s=duration_s), effects,
+    device = SimulatedGimbalDevice("udpin:127.0.0.1:0", simulated_gimbal(kinematics, body, duration_s), effects,
                                    lockstep=lockstep, **kwargs)
     stop, errors = threading.Event(), []
 
@@ -251,6 +252,18 @@ def test_discovery_and_information():
         assert info.cap_flags == 2 | 4 | 16 | 32 | 128 | 256 | 512 | 1024 | 4096
 
 
+def test_information_turns_the_yaw_range():
+    """A gimbal that yaws 100° right and 150° left: the protocol's yaw (positive right) spans
+    −150°..100°."""
+    kin = GimbalKinematics(joint_limits_rad=((D(-100), D(150)), (D(-30), D(40)), (D(-80), D(20))))
+    with lockstep_pair(kinematics=kin) as (device, gimbal):
+        info = gimbal.info
+    assert np.allclose(info.yaw_limits_rad, (D(-150), D(100)), atol=1e-7)
+    assert np.allclose(info.roll_limits_rad, (D(-30), D(40)), atol=1e-7)
+    assert np.allclose(info.pitch_limits_rad, (D(-80), D(20)), atol=1e-7)
+    assert np.allclose(info.joint_limits_rad, kin.joint_limits_rad, atol=1e-7)
+
+
 @pytest.mark.parametrize("rate_hz", [50.0, 30.0])
 def test_status_count_is_exact_in_lockstep(rate_hz):
     with lockstep_pair(status_rate_hz=rate_hz) as (device, gimbal):
@@ -291,6 +304,14 @@ def test_attitude_command_converges():
         gimbal.send_neutral()
         gimbal.step(1.0)
         assert np.abs(gimbal.latest().q_rad).max() < 1e-5
+
+
+def test_a_large_attitude_step_slews_at_the_rate_limit():
+    with lockstep_pair(status_rate_hz=50.0, max_rate_rad_s=1.0) as (device, gimbal):
+        gimbal.send_attitude(D(90), 0.0)  # 1.57 rad at 1 rad/s: still slewing from 0.2 s to 1.2 s
+        gimbal.step(1.0)
+        reports = gimbal.reports()
+    assert abs(slope(reports, 0, 0.5, 1.0) + 1.0) < 1e-6
 
 
 def test_earth_frame_on_a_turned_body():
