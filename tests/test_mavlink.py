@@ -32,6 +32,7 @@ from pymavlink.dialects.v20 import common as mavlink  # the oracle's parser, fre
 
 import gimbal_lab
 from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.mavlink import frames
 from gimbal_lab.mavlink.device import LinkEffects, SimulatedGimbalDevice, firmware_version_word, simulated_gimbal
 from gimbal_lab.mavlink.driver import GimbalCommandFailed, GimbalLinkLost, GimbalNotFound, MavlinkGimbal
 from gimbal_lab.mavlink.link import FdLink, SerialLink, open_link
@@ -334,6 +335,29 @@ def same_rotation(a, b, tol):
     return min(np.abs(np.asarray(a) - b).max(), np.abs(np.asarray(a) + b).max()) < tol
 
 
+def test_reports_on_a_swaying_body_are_the_camera_in_the_earth():
+    """On a hovering body (sway and heading wander) the report, turned into the earth frame with
+    its delta yaw, is the camera's true attitude: F·R_world_cam·R_cam_gimbal from the mount's own
+    recorded joints and the body's pose (gimbal_lab.mount.camera_pose)."""
+    F = np.diag([1.0, -1.0, -1.0])
+    P = np.column_stack([(0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
+    with lockstep_pair(body=BodyMotion.hover(seed=2), duration_s=0.6, status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_attitude(D(20), D(-10), frame="earth")
+        gimbal.step(0.5)
+        reports = gimbal.reports()
+        camera_fn = device.mount.recorded_pose_fn(0.0, 0.5)
+    headings = []
+    for r in reports:
+        _, T_world_cam = camera_fn(r.time_s)
+        expected = frames.quaternion_from_matrix(F @ T_world_cam[:3, :3] @ P)
+        assert same_rotation(r.quaternion_in("earth"), expected, 4 * F32)
+        # delta yaw is the body's heading: its Z-Y-X yaw about up, with NED's sign (about down)
+        R_world_body = device.body.T_world_body(r.time_s)[:3, :3]
+        assert abs(r.delta_yaw_rad + math.atan2(R_world_body[1, 0], R_world_body[0, 0])) < 1e-7
+        headings.append(r.delta_yaw_rad)
+    assert np.ptp(headings) > 1e-3  # the heading did wander, so delta yaw was exercised
+
+
 def test_joint_limit_stops_the_axis_and_is_flagged():
     with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
         gimbal.send_rates([0.0, 1.0, 0.0])  # pitch up at 1 rad/s towards +45°
@@ -530,6 +554,14 @@ def test_bad_arguments_give_one_line_and_exit_2(args, message, capsys):
     lines = err.strip().splitlines()
     assert done.value.code == 2 and len(lines) == 1, err
     assert message in lines[0] and lines[0].startswith("gimbal-lab gimbal-device: error:")
+
+
+def test_without_the_extra_the_command_says_what_to_install(monkeypatch, capsys):
+    from gimbal_lab.cli import main
+
+    monkeypatch.setitem(sys.modules, "pymavlink", None)  # as if it were not installed
+    assert main(["gimbal-device"]) == 1
+    assert "needs pymavlink: pip install 'gimbal-lab[mavlink]'" in capsys.readouterr().err
 
 
 def test_bad_argument_from_the_command_line():

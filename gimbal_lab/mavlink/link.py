@@ -145,7 +145,9 @@ class SerialLink(Link):
 
     def read(self, timeout_s: float) -> bytes:
         port = self._port
-        port.timeout = max(float(timeout_s), 0.0)
+        timeout_s = max(float(timeout_s), 0.0)
+        if port.timeout != timeout_s:  # setting it reconfigures the port
+            port.timeout = timeout_s
         first = port.read(1)
         if not first:
             return b""
