@@ -35,7 +35,7 @@ from gimbal_lab.kinematics import GimbalKinematics
 from gimbal_lab.mavlink import frames
 from gimbal_lab.mavlink.device import LinkEffects, SimulatedGimbalDevice, firmware_version_word, simulated_gimbal
 from gimbal_lab.mavlink.driver import GimbalCommandFailed, GimbalLinkLost, GimbalNotFound, MavlinkGimbal
-from gimbal_lab.mavlink.link import FdLink, SerialLink, open_link
+from gimbal_lab.mavlink.link import FdLink, Link, SerialLink, open_link
 from gimbal_lab.platform import BodyMotion
 
 D = math.radians
@@ -499,6 +499,24 @@ def test_real_time_stream_and_a_stopped_device():
             assert lost.value.silence_s > 0.5
             with pytest.raises(GimbalLinkLost):
                 gimbal.latest()
+
+
+def test_a_failing_link_is_reported():
+    class Broken(Link):
+        address = "broken"
+
+        def read(self, timeout_s):
+            raise OSError(5, "Input/output error")
+
+        def write(self, data):
+            pass
+
+    gimbal = MavlinkGimbal(Broken(), target=(1, 154), request_info=False)
+    try:
+        with pytest.raises(GimbalLinkLost, match="the link broken failed: .*Input/output error"):
+            gimbal.wait_report(timeout_s=LIVENESS_S)
+    finally:
+        gimbal.close()
 
 
 def test_killed_device_process_is_noticed():

@@ -35,7 +35,6 @@ from .frames import (
     quaternion_to_joints,
     rot_z,
 )
-from .frames import __all__ as _frames_all
 
 _LAZY = {
     "MavlinkGimbal": "driver", "AttitudeReport": "driver", "GimbalDeviceInfo": "driver",
@@ -45,7 +44,13 @@ _LAZY = {
     "open_link": "link",
 }
 
-__all__ = [*_frames_all, *_LAZY]
+__all__ = [
+    "F_NED_NWU", "R_CAM_GIMBAL", "angular_velocity_to_joint_rates", "camera_from_gimbal",
+    "camera_rates_to_angular_velocity", "euler_from_quaternion", "gimbal_attitude_matrix", "gimbal_from_camera",
+    "joint_rates_to_angular_velocity", "joints_to_quaternion", "matrix_from_quaternion", "quaternion_from_euler",
+    "quaternion_from_matrix", "quaternion_multiply", "quaternion_to_joints", "rot_z",
+    *_LAZY,
+]
 
 
 def __getattr__(name):

@@ -301,23 +301,26 @@ class MavlinkGimbal:
 
     # ------------------------------------------------------------------ the receiving thread
     def _receive_loop(self) -> None:
-        while not self._closing.is_set():
-            now = time.monotonic()
-            if now >= self._next_heartbeat_s:
-                self._next_heartbeat_s = now + _HEARTBEAT_PERIOD_S
-                self._send(self._mav.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
-                                                      mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE))
-            try:
+        try:
+            while not self._closing.is_set():
+                now = time.monotonic()
+                if now >= self._next_heartbeat_s:
+                    self._next_heartbeat_s = now + _HEARTBEAT_PERIOD_S
+                    self._send(self._mav.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                                                          mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE))
                 data = self._link.read(_POLL_S)
-            except OSError:
-                if self._closing.is_set():
-                    return
-                raise
-            now = time.monotonic()
-            if data:
-                for msg in self._mav.parse_buffer(data) or ():
-                    self._handle(msg, now)
-            self._watch(now)
+                now = time.monotonic()
+                if data:
+                    for msg in self._mav.parse_buffer(data) or ():
+                        self._handle(msg, now)
+                self._watch(now)
+        except Exception as exc:  # the link failed: every waiting and later call raises
+            if self._closing.is_set():
+                return
+            with self._cond:
+                silence = math.nan if self._last_heard_s is None else time.monotonic() - self._last_heard_s
+                self._lost = GimbalLinkLost(f"the link {self.address} failed: {exc}", silence)
+                self._cond.notify_all()
 
     def _send(self, msg) -> None:
         with self._send_lock:
