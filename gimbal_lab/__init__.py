@@ -18,6 +18,7 @@ simulation    the closed tracking loop
 runner        executors (local spawn pool, Dask), the results store, progress
 stats         replicate statistics and three-way verdicts
 studies       one module per study (paper: the 16-cell grid and its claims)
+mavlink       MAVLink Gimbal Protocol v2: a driver and the lab's gimbal as a simulated device
 plotting      every figure
 """
 

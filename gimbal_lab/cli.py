@@ -17,7 +17,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 #: Modules that add sub-commands; each has ``add_parsers(subparsers)`` and sets ``func``.
-_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld", "gimbal_lab.show")
+_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld", "gimbal_lab.show", "gimbal_lab.mavlink.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:

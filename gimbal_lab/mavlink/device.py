@@ -1,0 +1,573 @@
+"""The lab's gimbal as a MAVLink gimbal device (Gimbal Protocol v2), for drivers to talk to.
+
+:class:`SimulatedGimbalDevice` runs :class:`gimbal_lab.mount.GimbalMount` (the three axes'
+dynamics and rate loops, on a :class:`gimbal_lab.platform.BodyMotion`, a still body by default)
+built by :func:`simulated_gimbal`, and speaks MAVLink 2 on a link:
+
+* HEARTBEAT once a second of wall time (``MAV_TYPE_GIMBAL``, its component id);
+* GIMBAL_DEVICE_INFORMATION on MAV_CMD_REQUEST_MESSAGE: the joint limits as the protocol's angle
+  limits (yaw sign turned: the lab's yaw is positive to the left) and its capabilities (roll and
+  pitch locked to the horizon, yaw following the vehicle or locked to North, neutral);
+* GIMBAL_DEVICE_SET_ATTITUDE (module docstring of :mod:`gimbal_lab.mavlink.frames` for frames):
+
+  - **rates** (quaternion NaN): the commanded angular velocity relative to the vehicle or earth
+    frame becomes the axes' rate references, w = A(q)⁻¹·ω (:func:`frames.angular_velocity_to_joint_rates`,
+    A from the DH Jacobian), recomputed every ``control_period_s`` as the joints move; a NaN
+    component counts as 0;
+  - **attitude**: a proportional attitude law, ω = k·log(R_ref·R_cur⁻¹) (the rotation vector of
+    the error, in vehicle-frame axes, k = ``attitude_gain_per_s``, 20 /s by default: the stabilised
+    mount's gain) plus any feed-forward rate, then as for rates;
+  - the references are scaled down together so that none exceeds ``max_rate_rad_s``, and each
+    joint's is bounded by k·(limit − q) towards its limits (the joints approach a limit
+    exponentially and stop there; GIMBAL_DEVICE_ERROR_FLAGS_AT_*_LIMIT is reported while the bound
+    acts);
+  - NEUTRAL or RETRACT: the attitude (1, 0, 0, 0) in the vehicle frame; everything NaN: only the
+    flags change. Roll and pitch are always held relative to the horizon (no roll/pitch follow);
+* GIMBAL_DEVICE_ATTITUDE_STATUS every 1/``status_rate_hz`` s of simulated time (the first one
+  period after the start), in the vehicle frame with ``delta_yaw`` = the body's heading.
+
+Time
+----
+Everything inside runs on the inner step ``dt_s`` (1 ms): events (a command taking effect, a
+control update, a status sample, a delayed packet leaving) happen at whole steps, and the mount is
+advanced between them. **Real time** (default): the simulated clock follows the wall clock.
+**Lock-step**: the clock moves only on the driver's step command (:mod:`gimbal_lab.mavlink.protocol`),
+by exactly the steps asked, so a run is a function of the commands and their step times alone. A
+command received between steps takes effect at the clock's present step (plus the latency).
+
+Link effects (:class:`LinkEffects`, all seeded)
+----------------------------------------------
+The status stream's rate; a one-way ``latency_s`` (rounded to whole steps) that delays every status
+from its sample and every GIMBAL_DEVICE_SET_ATTITUDE from its arrival; ``quantum_rad``, to which
+the reported Z-Y-X angles are rounded (a gimbal reporting in 0.1° units); ``loss``, the chance that
+a status is lost (the n-th status is lost when the n-th draw of
+``numpy.random.default_rng(seed).random()`` is below it; its sequence number is spent, so the
+receiver sees the gap); and ``commanded_only``, which reports the commanded attitude (for rate
+commands: their integral from the last commanded attitude, starting at neutral) and the commanded
+rate instead of the measured ones, as a gimbal without angle feedback does. Heartbeats,
+information and acknowledgements are neither delayed nor lost.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..kinematics import GimbalKinematics
+from ..mount import ATTITUDE_GAIN_PER_S, GimbalMount
+from ..platform import BodyMotion
+from . import frames
+from .link import open_link
+from .protocol import PROGRESS_PERIOD_S, STEP_COMMAND, frame_of_flags, mavlink, new_mavlink
+
+__all__ = ["LinkEffects", "SimulatedGimbalDevice", "simulated_gimbal", "DEFAULT_MAX_RATE_RAD_S",
+           "firmware_version_word"]
+
+#: The device's joint-rate limit, rad/s (the lab's image loop limits its rates to the same).
+DEFAULT_MAX_RATE_RAD_S = 3.0
+_HEARTBEAT_PERIOD_S = 1.0
+_REALTIME_POLL_S = 0.002
+_LOCKSTEP_POLL_S = 0.05
+_Z = np.array([0.0, 0.0, 1.0])
+_LIMIT_FLAGS = (mavlink.GIMBAL_DEVICE_ERROR_FLAGS_AT_YAW_LIMIT, mavlink.GIMBAL_DEVICE_ERROR_FLAGS_AT_ROLL_LIMIT,
+                mavlink.GIMBAL_DEVICE_ERROR_FLAGS_AT_PITCH_LIMIT)
+
+
+def _real(name: str, value, low: float, *, low_open: bool = False, high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (v <= low if low_open else v < low) or (high is not None and v > high):
+        bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if high is not None else "")
+        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class LinkEffects:
+    """What the device's link does to the attitude stream (module docstring).
+
+    Parameters
+    ----------
+    status_rate_hz : float
+        GIMBAL_DEVICE_ATTITUDE_STATUS per second of simulated time, > 0.
+    latency_s : float
+        One-way delay of statuses and attitude commands, s, >= 0 (rounded to the inner step).
+    quantum_rad : float
+        Resolution of the reported Z-Y-X angles, rad, >= 0 (0: none).
+    loss : float
+        Probability that a status is lost, in [0, 1).
+    seed : int
+        Seed of the losses.
+    commanded_only : bool
+        Report the commanded attitude and rate instead of the measured ones.
+    """
+
+    status_rate_hz: float = 20.0
+    latency_s: float = 0.0
+    quantum_rad: float = 0.0
+    loss: float = 0.0
+    seed: int = 0
+    commanded_only: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "status_rate_hz", _real("status_rate_hz", self.status_rate_hz, 0.0, low_open=True))
+        object.__setattr__(self, "latency_s", _real("latency_s", self.latency_s, 0.0))
+        object.__setattr__(self, "quantum_rad", _real("quantum_rad", self.quantum_rad, 0.0))
+        loss = _real("loss", self.loss, 0.0)
+        if loss >= 1.0:
+            raise ValueError(f"loss must be in [0, 1), got {self.loss!r}")
+        object.__setattr__(self, "loss", loss)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if not isinstance(self.commanded_only, bool):
+            raise TypeError(f"commanded_only must be True or False, got {self.commanded_only!r}")
+
+
+def simulated_gimbal(kinematics: GimbalKinematics | None = None, body: BodyMotion | None = None,
+                     duration_s: float = 3600.0, dt_s: float = 1e-3) -> GimbalMount:
+    """The gimbal the device runs: the lab's axes and rate loops on a body (the one place it is built).
+
+    Parameters
+    ----------
+    kinematics : GimbalKinematics, optional
+        Default: :meth:`GimbalKinematics.default` (the study's STorM32-sized gimbal).
+    body : BodyMotion, optional
+        Default: :meth:`BodyMotion.static` (a still, level body facing North).
+    duration_s : float
+        Simulated time the device can run, s, > 0 (GimbalMount draws the body's motion and keeps
+        the joint path for the whole run when it is built: a moving body costs about 2 s of
+        building per simulated second).
+    dt_s : float
+        Inner step, s (the rate loops' 1 kHz by default).
+
+    Returns
+    -------
+    GimbalMount
+        In "active" mode: its rate references come from the device.
+    """
+    kinematics = kinematics or GimbalKinematics.default()
+    body = body or BodyMotion.static()
+    duration_s = _real("duration_s", duration_s, 0.0, low_open=True)
+    dt_s = _real("dt_s", dt_s, 0.0, low_open=True)
+    return GimbalMount(kinematics, body, "active", dt_s, int(math.ceil(duration_s / dt_s - 1e-9)))
+
+
+def firmware_version_word(version: str) -> int:
+    """MAVLink's version word of "major.minor.patch": Patch << 16 | Minor << 8 | Major."""
+    parts = [int(p) if p.isdigit() else 0 for p in (version.split(".") + ["0", "0"])[:3]]
+    major, minor, patch = (p & 0xFF for p in parts)
+    return (patch << 16) | (minor << 8) | major
+
+
+class _Outbox:
+    """pymavlink's file: keeps the bytes of the packet just packed (the device routes them)."""
+
+    def __init__(self):
+        self.data = b""
+
+    def write(self, data: bytes) -> None:
+        self.data = data
+
+
+class SimulatedGimbalDevice:
+    """The lab's gimbal as a MAVLink gimbal device (module docstring).
+
+    Parameters
+    ----------
+    link : str or gimbal_lab.mavlink.link.Link
+        Where to listen: ``udpin:HOST:PORT``, ``udpout:HOST:PORT``, a serial device or pyserial URL,
+        or an open link.
+    mount : GimbalMount, optional
+        The simulated gimbal (default: :func:`simulated_gimbal`); mode "active", not yet stepped.
+    effects : LinkEffects, optional
+    lockstep : bool
+        Advance only on the driver's step command (else: real time).
+    system_id, component_id : int
+        The device's MAVLink identity (default 1, MAV_COMP_ID_GIMBAL).
+    max_rate_rad_s : float
+        Largest rate reference of any axis, rad/s, > 0.
+    attitude_gain_per_s : float
+        Gain k of the attitude law and of the approach to the joint limits, 1/s, > 0.
+    control_period_s : float
+        How often the rate references are recomputed, s (rounded to whole inner steps, >= 1).
+    baud : int
+        Serial speed, bit/s.
+
+    Attributes
+    ----------
+    statuses_sent, statuses_lost : int
+        Status messages sampled and put on the link / lost by the loss model.
+    commands_applied, commands_rejected : int
+        GIMBAL_DEVICE_SET_ATTITUDE messages that took effect / were refused (both yaw frames set,
+        or a quaternion that is not a rotation).
+    """
+
+    def __init__(self, link, mount: GimbalMount | None = None, effects: LinkEffects | None = None, *,
+                 lockstep: bool = False, system_id: int = 1, component_id: int = mavlink.MAV_COMP_ID_GIMBAL,
+                 max_rate_rad_s: float = DEFAULT_MAX_RATE_RAD_S, attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S,
+                 control_period_s: float = 0.002, baud: int = 115200):
+        mount = mount if mount is not None else simulated_gimbal()
+        if not isinstance(mount, GimbalMount):
+            raise TypeError(f"mount must be a GimbalMount, got {type(mount).__name__}")
+        if mount.mount != "active" or mount.step_index != 0:
+            raise ValueError(f"mount must be an 'active' GimbalMount that has not run yet (simulated_gimbal()), got "
+                             f"mode {mount.mount!r} at step {mount.step_index}")
+        effects = effects if effects is not None else LinkEffects()
+        if not isinstance(effects, LinkEffects):
+            raise TypeError(f"effects must be a LinkEffects, got {type(effects).__name__}")
+        self.mount = mount
+        self.kinematics = mount.kinematics
+        self.body = mount.body
+        self.effects = effects
+        self.lockstep = bool(lockstep)
+        self.max_rate_rad_s = _real("max_rate_rad_s", max_rate_rad_s, 0.0, low_open=True)
+        self.attitude_gain_per_s = _real("attitude_gain_per_s", attitude_gain_per_s, 0.0, low_open=True)
+        self.dt_s = mount.dt_s
+        self._control_steps = max(1, int(round(_real("control_period_s", control_period_s, 0.0, low_open=True)
+                                               / self.dt_s)))
+        self._latency_steps = int(round(effects.latency_s / self.dt_s))
+        self._steps_per_status = 1.0 / (effects.status_rate_hz * self.dt_s)
+        self._lo = np.array([lo for lo, _ in self.kinematics.joint_limits_rad])
+        self._hi = np.array([hi for _, hi in self.kinematics.joint_limits_rad])
+        self.link = open_link(link, baud)
+        self._outbox = _Outbox()
+        self._mav = new_mavlink(self._outbox, system_id, component_id)
+        self.system_id, self.component_id = system_id, component_id
+        self._rng = np.random.default_rng(effects.seed)
+        # the clock and its events, in inner steps
+        self._k = 0
+        self._next_control = 0
+        self._status_n = 1
+        self._next_status = self._status_due(1)
+        self._incoming: deque = deque()  # (step it takes effect, GIMBAL_DEVICE_SET_ATTITUDE)
+        self._outgoing: deque = deque()  # (step it leaves, packet bytes)
+        # the setpoint: neutral in the vehicle frame
+        self._mode = "attitude"
+        self._frame = "vehicle"
+        self._R_ref = np.eye(3)
+        self._omega_cmd = np.zeros(3)
+        self._cmd_flags = 0
+        self._R_cmd = np.eye(3)  # commanded attitude in self._frame (commanded-only reports)
+        self._k_cmd = 0  # step up to which _R_cmd has been integrated
+        self._w_ref = np.zeros(3)
+        self._failure_flags = 0
+        self._still = not mount.moving
+        self._body_cache = None
+        self.statuses_sent = self.statuses_lost = 0
+        self.commands_applied = self.commands_rejected = 0
+        self._next_heartbeat_wall = 0.0
+        self._stepping = None  # lock-step: (first step, last step, next progress wall time) while a step runs
+        self._events()
+
+    # ------------------------------------------------------------------ clock
+    @property
+    def t_s(self) -> float:
+        """The simulated clock, s."""
+        return self._k * self.dt_s
+
+    @property
+    def end_step(self) -> int:
+        """The last inner step the mount was built for."""
+        return self.mount.n_steps
+
+    @property
+    def q_rad(self) -> np.ndarray:
+        """The joints now (yaw, roll, pitch), rad (the simulation's truth, not the report)."""
+        return self.mount.q
+
+    def _status_due(self, n: int) -> int:
+        return int(math.ceil(n * self._steps_per_status - 1e-9))
+
+    def advance_to(self, k_target: int) -> None:
+        """Run the simulation to inner step ``k_target``, handling every event on the way."""
+        k_target = min(int(k_target), self.end_step)
+        mount = self.mount
+        while self._k < k_target:
+            k_next = min(k_target, self._next_control, self._next_status)
+            if self._incoming:
+                k_next = min(k_next, self._incoming[0][0])
+            if self._outgoing:
+                k_next = min(k_next, self._outgoing[0][0])
+            if k_next > self._k:
+                mount.advance(k_next - self._k, self._w_ref)
+                self._k = k_next
+            self._events()
+            if self._stepping is not None:
+                self._step_progress()
+
+    def _events(self) -> None:
+        """Everything due at the present step, in order: commands, control, status sample, sending."""
+        k = self._k
+        recompute = False
+        while self._incoming and self._incoming[0][0] <= k:
+            self._apply(self._incoming.popleft()[1])
+            recompute = True
+        if k >= self._next_control or recompute:
+            self._integrate_command()
+            self._w_ref = self._reference()
+            while self._next_control <= k:
+                self._next_control += self._control_steps
+        if k >= self._next_status:
+            self._sample_status()
+            self._status_n += 1
+            self._next_status = self._status_due(self._status_n)
+        while self._outgoing and self._outgoing[0][0] <= k:
+            self.link.write(self._outgoing.popleft()[1])
+
+    # ------------------------------------------------------------------ the body
+    def _body_state(self):
+        """(R_vehicle_body, heading ψ, heading rate ψ̇) now: the body's FRD axes in the vehicle frame."""
+        if self._still and self._body_cache is not None:
+            return self._body_cache
+        t = self.t_s
+        R_wb = self.body.T_world_body(t)[:3, :3]
+        angles, rates = self.body.attitude(t)
+        psi, psi_rate = -float(angles[0, 0]), -float(rates[0, 0])  # lab yaw is about up, NED heading about down
+        F = frames.F_NED_NWU
+        state = (frames.rot_z(psi).T @ F @ R_wb @ F, psi, psi_rate)
+        if self._still:
+            self._body_cache = state
+        return state
+
+    # ------------------------------------------------------------------ commands
+    def _apply(self, msg) -> None:
+        frame = frame_of_flags(msg.flags)
+        if frame is None:
+            self.commands_rejected += 1
+            return
+        q = np.array(msg.q, dtype=float)
+        omega = np.array([msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z], dtype=float)
+        self._integrate_command()
+        if msg.flags & (mavlink.GIMBAL_DEVICE_FLAGS_NEUTRAL | mavlink.GIMBAL_DEVICE_FLAGS_RETRACT):
+            mode, frame, R_ref, omega_cmd = "attitude", "vehicle", np.eye(3), np.zeros(3)
+        elif np.all(np.isfinite(q)):
+            norm = float(np.linalg.norm(q))
+            if not 0.5 < norm < 2.0:
+                self.commands_rejected += 1
+                return
+            mode, R_ref, omega_cmd = "attitude", frames.matrix_from_quaternion(q), np.nan_to_num(omega, nan=0.0)
+        elif np.any(np.isfinite(omega)):
+            mode, R_ref, omega_cmd = "rate", None, np.nan_to_num(omega, nan=0.0)
+        else:  # nothing to follow: only the flags change
+            self._cmd_flags = int(msg.flags)
+            self.commands_applied += 1
+            return
+        # the commanded attitude carried into the new frame (commanded-only reports)
+        if frame != self._frame:
+            _, psi, _ = self._body_state()
+            turn = frames.rot_z(psi) if frame == "earth" else frames.rot_z(psi).T
+            self._R_cmd = turn @ self._R_cmd
+        self._mode, self._frame, self._omega_cmd, self._cmd_flags = mode, frame, omega_cmd, int(msg.flags)
+        if mode == "attitude":
+            self._R_ref = R_ref
+            self._R_cmd = R_ref.copy()
+        self.commands_applied += 1
+
+    def _integrate_command(self) -> None:
+        """Carry the commanded attitude to the present step under a rate command (R ← exp(ω Δt)·R)."""
+        k = self._k
+        if self._mode == "rate" and k > self._k_cmd:
+            rotation = Rotation.from_rotvec(self._omega_cmd * ((k - self._k_cmd) * self.dt_s)).as_matrix()
+            self._R_cmd = rotation @ self._R_cmd
+        self._k_cmd = k
+
+    def _reference(self) -> np.ndarray:
+        """The axes' rate references w (inertial, joint basis), rad/s, for the setpoint now."""
+        q = self.mount.q
+        R_vb, psi, psi_rate = self._body_state()
+        Rz = frames.rot_z(psi)
+        if self._mode == "attitude":
+            R_cur = frames.gimbal_attitude_matrix(self.kinematics, q, R_vb)
+            R_ref = self._R_ref if self._frame == "vehicle" else Rz.T @ self._R_ref
+            error = Rotation.from_matrix(R_ref @ R_cur.T).as_rotvec()
+            omega = self.attitude_gain_per_s * error
+        else:
+            omega = np.zeros(3)
+        # the commanded (feed-forward) rate, relative to its frame → inertial, in vehicle axes
+        omega = omega + (self._omega_cmd + psi_rate * _Z if self._frame == "vehicle" else Rz.T @ self._omega_cmd)
+        try:
+            w = frames.angular_velocity_to_joint_rates(self.kinematics, q, omega, R_vb)
+        except ValueError:  # at the roll ±90° singularity: hold
+            w = np.zeros(3)
+        peak = float(np.max(np.abs(w)))
+        if peak > self.max_rate_rad_s:
+            w *= self.max_rate_rad_s / peak
+        k_lim = self.attitude_gain_per_s
+        upper = k_lim * (self._hi - q)
+        lower = k_lim * (self._lo - q)
+        flags = 0
+        for i in range(3):
+            if w[i] > upper[i]:
+                w[i] = upper[i]
+                flags |= _LIMIT_FLAGS[i]
+            elif w[i] < lower[i]:
+                w[i] = lower[i]
+                flags |= _LIMIT_FLAGS[i]
+        self._failure_flags = flags
+        return w
+
+    # ------------------------------------------------------------------ messages out
+    def _pack(self, msg) -> bytes:
+        self._mav.send(msg)
+        return self._outbox.data
+
+    def _send_now(self, msg) -> None:
+        self.link.write(self._pack(msg))
+
+    def _time_ms(self) -> int:
+        return int(round(self._k * self.dt_s * 1000.0)) & 0xFFFFFFFF
+
+    def _sample_status(self) -> None:
+        q = self.mount.q
+        R_vb, psi, psi_rate = self._body_state()
+        if self.effects.commanded_only:
+            R_vehicle = self._R_cmd if self._frame == "vehicle" else frames.rot_z(psi).T @ self._R_cmd
+            if self._mode == "rate":
+                omega = self._omega_cmd if self._frame == "vehicle" else frames.rot_z(psi).T @ self._omega_cmd - psi_rate * _Z
+            else:
+                omega = np.full(3, np.nan)
+        else:
+            R_vehicle = frames.gimbal_attitude_matrix(self.kinematics, q, R_vb)
+            omega = frames.joint_rates_to_angular_velocity(self.kinematics, q, self.mount.axis_rates, R_vb) - psi_rate * _Z
+        quat = frames.quaternion_from_matrix(R_vehicle)
+        quantum = self.effects.quantum_rad
+        if quantum > 0:
+            quat = frames.quaternion_from_euler(*(round(a / quantum) * quantum for a in frames.euler_from_quaternion(quat)))
+        flags = (mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+                 | mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME | mavlink.GIMBAL_DEVICE_FLAGS_ACCEPTS_YAW_IN_EARTH_FRAME)
+        if self._frame == "earth":
+            flags |= mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK
+        msg = self._mav.gimbal_device_attitude_status_encode(
+            0, 0, self._time_ms(), flags, [float(v) for v in quat], float(omega[0]), float(omega[1]), float(omega[2]),
+            self._failure_flags, float(psi), float(psi_rate), 0)
+        packet = self._pack(msg)  # the sequence number is spent even when the packet is then lost
+        if self.effects.loss > 0 and self._rng.random() < self.effects.loss:
+            self.statuses_lost += 1
+            return
+        self.statuses_sent += 1
+        self._outgoing.append((self._k + self._latency_steps, packet))
+
+    def _heartbeat(self) -> None:
+        self._send_now(self._mav.heartbeat_encode(mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                  mavlink.MAV_STATE_ACTIVE))
+
+    def _maybe_heartbeat(self, now: float) -> None:
+        if now >= self._next_heartbeat_wall:
+            self._next_heartbeat_wall = now + _HEARTBEAT_PERIOD_S
+            self._heartbeat()
+
+    def information_message(self):
+        """GIMBAL_DEVICE_INFORMATION of this device (pymavlink message)."""
+        from .. import __version__
+
+        (y_lo, y_hi), (r_lo, r_hi), (p_lo, p_hi) = self.kinematics.joint_limits_rad
+        cap = (mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_NEUTRAL | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_ROLL_AXIS
+               | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_ROLL_LOCK | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_PITCH_AXIS
+               | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_PITCH_LOCK | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_YAW_AXIS
+               | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_YAW_FOLLOW | mavlink.GIMBAL_DEVICE_CAP_FLAGS_HAS_YAW_LOCK
+               | mavlink.GIMBAL_DEVICE_CAP_FLAGS_SUPPORTS_YAW_IN_EARTH_FRAME)
+        if math.isinf(y_lo) and math.isinf(y_hi):
+            cap |= mavlink.GIMBAL_DEVICE_CAP_FLAGS_SUPPORTS_INFINITE_YAW
+
+        def limit(v):
+            return v if math.isfinite(v) else math.nan
+
+        return self._mav.gimbal_device_information_encode(
+            self._time_ms(), b"gimbal-lab", b"simulated yaw-roll-pitch", b"", firmware_version_word(__version__), 0, 0,
+            cap & 0xFFFF, 0, limit(r_lo), limit(r_hi), limit(p_lo), limit(p_hi), limit(-y_hi), limit(-y_lo), 0, cap)
+
+    # ------------------------------------------------------------------ messages in
+    def _addressed_to_me(self, msg) -> bool:
+        return msg.target_system in (0, self.system_id) and msg.target_component in (0, self.component_id)
+
+    def handle(self, msg) -> None:
+        """React to one received message (the loops call this; tests may too)."""
+        kind = msg.get_type()
+        if kind == "GIMBAL_DEVICE_SET_ATTITUDE" and self._addressed_to_me(msg):
+            self._incoming.append((self._k + self._latency_steps, msg))
+            if self._latency_steps == 0:
+                self._events()
+        elif kind == "COMMAND_LONG" and self._addressed_to_me(msg):
+            self._command(msg)
+
+    def _ack(self, msg, result: int, progress: int = 0) -> None:
+        self._send_now(self._mav.command_ack_encode(msg.command, result, progress, self._time_ms(),
+                                                    msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _command(self, msg) -> None:
+        if msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            if int(msg.param1) == mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION:
+                self._ack(msg, mavlink.MAV_RESULT_ACCEPTED)
+                self._send_now(self.information_message())
+            else:
+                self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
+        elif msg.command == STEP_COMMAND:
+            duration = float(msg.param1)
+            if not self.lockstep or not (math.isfinite(duration) and duration >= 0):
+                self._ack(msg, mavlink.MAV_RESULT_DENIED)
+                return
+            k_end = self._k + int(round(duration / self.dt_s))
+            if k_end > self.end_step:
+                self._ack(msg, mavlink.MAV_RESULT_DENIED)
+                return
+            self._stepping = [msg, self._k, k_end, time.monotonic() + PROGRESS_PERIOD_S]
+            try:
+                self.advance_to(k_end)
+            finally:
+                self._stepping = None
+            self._ack(msg, mavlink.MAV_RESULT_ACCEPTED, 100)
+        else:
+            self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
+
+    def _step_progress(self) -> None:
+        """During a long lock-step step: heartbeats and progress acknowledgements keep the driver informed."""
+        now = time.monotonic()
+        self._maybe_heartbeat(now)
+        msg, first, last, next_progress = self._stepping
+        if now >= next_progress:
+            self._stepping[3] = now + PROGRESS_PERIOD_S
+            done = int(100 * (self._k - first) / max(last - first, 1))
+            self._ack(msg, mavlink.MAV_RESULT_IN_PROGRESS, min(done, 99))
+
+    def _receive(self, timeout_s: float) -> None:
+        data = self.link.read(timeout_s)
+        if data:
+            for msg in self._mav.parse_buffer(data) or ():
+                if msg.get_type() != "BAD_DATA" and (msg.get_srcSystem(), msg.get_srcComponent()) != (
+                        self.system_id, self.component_id):
+                    self.handle(msg)
+
+    # ------------------------------------------------------------------ running
+    def run(self, stop=None) -> str:
+        """Serve until ``stop`` (a ``threading.Event``) is set or the mount's run is over.
+
+        Returns
+        -------
+        str
+            "stopped" or "end of run" (the simulated time reached the mount's duration; in
+            lock-step the device keeps answering and refuses further steps until stopped).
+        """
+        if self.lockstep:
+            while stop is None or not stop.is_set():
+                self._maybe_heartbeat(time.monotonic())
+                self._receive(_LOCKSTEP_POLL_S)
+            return "stopped"
+        start = time.monotonic() - self._k * self.dt_s
+        while stop is None or not stop.is_set():
+            now = time.monotonic()
+            self.advance_to(int((now - start) / self.dt_s))
+            if self._k >= self.end_step:
+                return "end of run"
+            self._maybe_heartbeat(now)
+            self._receive(_REALTIME_POLL_S)
+        return "stopped"
+
+    def close(self) -> None:
+        """Close the link."""
+        self.link.close()

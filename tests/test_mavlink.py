@@ -1,0 +1,644 @@
+"""The MAVLink gimbal driver and the simulated gimbal device, over loopback links only.
+
+Encoding: the driver sends to a plain UDP socket and each datagram is decoded with a fresh
+pymavlink parser and, for GIMBAL_DEVICE_SET_ATTITUDE, also by hand from the message set's wire
+layout. Behaviour: the driver talks to the device (in a thread of this process, or the
+``gimbal-lab gimbal-device`` command in a subprocess) on 127.0.0.1 or a pseudo-terminal; nothing
+leaves the machine. Lock-step runs are exact (whole inner steps of 1 ms); real-time runs are
+checked for liveness only, with generous timeouts.
+
+Tolerances: a float32 field holds a value of magnitude <= 1 to 2⁻²⁴ ≈ 6e-8 (half an ulp), so a
+quaternion's angle is good to about 2·2·6e-8 ≈ 2.4e-7 rad; slopes over 0.5 s of two such angles
+to 1e-6 rad/s. The rate loops settle with time constants below 7 ms (their slowest closed-loop
+pole, python-control, checked below), so 0.5 s after a command their transient is e^-70 of its
+start: nothing but float32 rounding is left.
+"""
+
+import math
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+import tty
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink  # the oracle's parser, fresh per use
+
+import gimbal_lab
+from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.mavlink import frames
+from gimbal_lab.mavlink.device import LinkEffects, SimulatedGimbalDevice, firmware_version_word, simulated_gimbal
+from gimbal_lab.mavlink.driver import GimbalCommandFailed, GimbalLinkLost, GimbalNotFound, MavlinkGimbal
+from gimbal_lab.mavlink.link import FdLink, Link, SerialLink, open_link
+from gimbal_lab.platform import BodyMotion
+
+D = math.radians
+F32 = 2.4e-7  # rad: a float32 quaternion's angle (module docstring)
+# GIMBAL_DEVICE_FLAGS as the MAVLink common message set numbers them
+ROLL_LOCK, PITCH_LOCK, YAW_LOCK, YAW_IN_VEHICLE_FRAME, YAW_IN_EARTH_FRAME, NEUTRAL = 4, 8, 16, 32, 64, 2
+AT_PITCH_LIMIT = 2  # GIMBAL_DEVICE_ERROR_FLAGS_AT_PITCH_LIMIT
+LIVENESS_S = 60.0  # generous bound for anything that must merely happen
+
+
+# ---------------------------------------------------------------------------------- helpers
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def running_device(*, kinematics=None, body=None, duration_s=30.0, lockstep=True, **kwargs):
+    """A device on udpin:127.0.0.1:<free port> served by a thread; yields (device, driver address,
+    the event that stops it)."""
+    effect_names = set(LinkEffects.__dataclass_fields__)
+    effects = LinkEffects(**{k: kwargs.pop(k) for k in list(kwargs) if k in effect_names})
+    device = SimulatedGimbalDevice("udpin:127.0.0.1:0", simulated_gimbal(kinematics, body, duration_s), effects,
+                                   lockstep=lockstep, **kwargs)
+    stop, errors = threading.Event(), []
+
+    def serve():
+        try:
+            device.run(stop)
+        except BaseException as exc:  # surfaced by the test below
+            errors.append(exc)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield device, f"udpout:127.0.0.1:{device.link.local_address[1]}", stop
+    finally:
+        stop.set()
+        thread.join(LIVENESS_S)
+        device.close()
+    assert not errors, errors
+
+
+@contextmanager
+def lockstep_pair(**kwargs):
+    with running_device(lockstep=True, **kwargs) as (device, address, _):
+        with MavlinkGimbal(address, lockstep=True) as gimbal:
+            yield device, gimbal
+
+
+@contextmanager
+def sniffer():
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(LIVENESS_S)
+    try:
+        yield sock
+    finally:
+        sock.close()
+
+
+def sniff(sock, kind):
+    """The next datagram holding a message of type ``kind``: (message, raw bytes of the packet)."""
+    parser = mavlink.MAVLink(None)
+    while True:
+        data, _ = sock.recvfrom(65535)
+        for msg in parser.parse_buffer(data) or ():
+            if msg.get_type() == kind:
+                return msg, data
+
+
+def cli(*args):
+    return [sys.executable, "-m", "gimbal_lab.cli", "gimbal-device", *args]
+
+
+def wait_for_line(proc, text, timeout_s=LIVENESS_S):
+    """Read the subprocess's stdout until a line contains ``text``."""
+    deadline = time.monotonic() + timeout_s
+    lines = []
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if text in line:
+            return line
+    raise AssertionError(f"{text!r} never printed; output: {lines}, stderr: {proc.stderr.read() if proc.poll() is not None else ''}")
+
+
+def slope(reports, joint, t0, t1):
+    a = next(r for r in reports if abs(r.time_s - t0) < 1e-9)
+    b = next(r for r in reports if abs(r.time_s - t1) < 1e-9)
+    return (b.q_rad[joint] - a.q_rad[joint]) / (t1 - t0)
+
+
+def test_rate_loops_settle_within_7_ms():
+    """The premise of the rate tests' tolerance: every axis's closed rate loop has its slowest pole
+    faster than 1/7 ms (python-control on the loop the mount runs)."""
+    import control as ct
+
+    from gimbal_lab.control import AxisPlant, RateLoop, closed_loop
+
+    for axis in ("yaw", "roll", "pitch"):
+        plant = AxisPlant.storm32(axis)
+        loop = RateLoop(plant)
+        T_ry, _ = closed_loop(plant, loop.gains, loop.pid.derivative_tau_s)
+        assert -1.0 / max(ct.poles(T_ry).real) < 0.007
+
+
+# ---------------------------------------------------------------------------------- encoding
+def _hand_quaternion_30_minus_20():
+    c15, s15, c10, s10 = math.cos(D(15)), math.sin(D(15)), math.cos(D(-10)), math.sin(D(-10))
+    return np.array([c15 * c10, -s15 * s10, c15 * s10, s15 * c10])
+
+
+@pytest.mark.parametrize("frame, flags", [("vehicle", ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME),
+                                          ("earth", ROLL_LOCK | PITCH_LOCK | YAW_LOCK | YAW_IN_EARTH_FRAME)])
+def test_set_attitude_encodes_yaw_30_pitch_minus_20(frame, flags):
+    with sniffer() as sock, MavlinkGimbal(f"udpout:127.0.0.1:{sock.getsockname()[1]}", target=(1, 154),
+                                          request_info=False) as gimbal:
+        gimbal.send_attitude(D(30), D(-20), frame=frame)
+        msg, raw = sniff(sock, "GIMBAL_DEVICE_SET_ATTITUDE")
+    expected = _hand_quaternion_30_minus_20()
+    assert np.abs(np.array(msg.q) - expected).max() < 6e-8
+    assert msg.flags == flags
+    assert all(math.isnan(v) for v in (msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z))
+    assert (msg.target_system, msg.target_component) == (1, 154)
+    assert (msg.get_srcSystem(), msg.get_srcComponent()) == (1, 191)  # MAV_COMP_ID_ONBOARD_COMPUTER
+    # MAVLink 2 framing, decoded by hand: magic 0xFD, payload length, flags, seq, sys, comp, 24-bit id 284
+    magic, length, _, _, _, system, component = struct.unpack_from("<BBBBBBB", raw)
+    message_id = int.from_bytes(raw[7:10], "little")
+    assert (magic, system, component, message_id) == (0xFD, 1, 191, 284)
+    # payload in the message set's wire order (largest types first): q[4], ωx, ωy, ωz (float),
+    # flags (uint16), target system, target component (uint8); MAVLink 2 trims trailing zeros
+    payload = raw[10:10 + length].ljust(32, b"\0")
+    *q, wx, wy, wz, wire_flags, target_system, target_component = struct.unpack("<4f3fHBB", payload)
+    assert np.abs(np.array(q) - expected).max() < 6e-8 and wire_flags == flags
+    assert math.isnan(wx) and math.isnan(wy) and math.isnan(wz) and (target_system, target_component) == (1, 154)
+
+
+def test_rate_commands_send_a_nan_quaternion():
+    with sniffer() as sock, MavlinkGimbal(f"udpout:127.0.0.1:{sock.getsockname()[1]}", target=(1, 154),
+                                          request_info=False) as gimbal:
+        gimbal.send_rates([0.1, -0.2, 0.3], frame="earth")
+        rates, _ = sniff(sock, "GIMBAL_DEVICE_SET_ATTITUDE")
+        gimbal.send_joint_rates([0.5, 0.0, 0.0], q_rad=np.zeros(3))
+        joint, _ = sniff(sock, "GIMBAL_DEVICE_SET_ATTITUDE")
+        gimbal.send_camera_rates([0.0, 0.4, 0.0], q_rad=np.zeros(3))
+        camera, _ = sniff(sock, "GIMBAL_DEVICE_SET_ATTITUDE")
+    assert all(math.isnan(v) for v in rates.q)
+    assert np.abs(np.array([rates.angular_velocity_x, rates.angular_velocity_y, rates.angular_velocity_z])
+                  - (0.1, -0.2, 0.3)).max() < 6e-8
+    assert rates.flags == ROLL_LOCK | PITCH_LOCK | YAW_LOCK | YAW_IN_EARTH_FRAME
+    # the lab's yaw joint turning left at 0.5 rad/s is a yaw rate of −0.5 rad/s (z down) at home
+    assert all(math.isnan(v) for v in joint.q) and joint.flags == ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME
+    assert np.abs(np.array([joint.angular_velocity_x, joint.angular_velocity_y, joint.angular_velocity_z])
+                  - (0.0, 0.0, -0.5)).max() < 6e-8
+    # the camera turning about its own down axis pans right: +z
+    assert np.abs(np.array([camera.angular_velocity_x, camera.angular_velocity_y, camera.angular_velocity_z])
+                  - (0.0, 0.0, 0.4)).max() < 6e-8
+
+
+def test_manager_pitch_yaw_and_heartbeat_encoding():
+    with sniffer() as sock, MavlinkGimbal(f"udpout:127.0.0.1:{sock.getsockname()[1]}", target=(1, 154),
+                                          request_info=False) as gimbal:
+        heartbeat, raw = sniff(sock, "HEARTBEAT")
+        gimbal.send_manager_pitch_yaw(pitch_rad=D(-20), yaw_rad=D(30))
+        msg, _ = sniff(sock, "GIMBAL_MANAGER_SET_PITCHYAW")
+    assert raw[0] == 0xFD and heartbeat.type == 18  # MAV_TYPE_ONBOARD_CONTROLLER
+    assert (msg.target_system, msg.target_component, msg.gimbal_device_id) == (1, 1, 154)
+    assert abs(msg.pitch - D(-20)) < 1e-7 and abs(msg.yaw - D(30)) < 1e-7
+    assert math.isnan(msg.pitch_rate) and math.isnan(msg.yaw_rate)
+    assert msg.flags == ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME
+
+
+def test_bad_driver_input_is_named():
+    with sniffer() as sock, MavlinkGimbal(f"udpout:127.0.0.1:{sock.getsockname()[1]}", target=(1, 154),
+                                          request_info=False) as gimbal:
+        with pytest.raises(ValueError, match="frame must be 'vehicle' or 'earth'"):
+            gimbal.send_attitude(0.0, 0.0, frame="body")
+        with pytest.raises(ValueError, match="omega_rad_s must be three finite numbers"):
+            gimbal.send_rates([0.0, math.nan, 0.0])
+        with pytest.raises(ValueError, match="q_rad is needed"):
+            gimbal.send_joint_rates([0.1, 0.0, 0.0])
+        with pytest.raises(GimbalCommandFailed, match="lockstep=True"):
+            gimbal.step(0.1)
+    with pytest.raises(ValueError, match="timeout_s must be a finite number > 0"):
+        MavlinkGimbal("udpout:127.0.0.1:9", timeout_s=0)
+    with pytest.raises(ValueError, match="udpin:HOST:PORT, udpout:HOST:PORT, a serial device path"):
+        open_link("tcp:127.0.0.1:5760")
+    with pytest.raises(ValueError, match="port of 'udpout:127.0.0.1:0' must be in 1..65535"):
+        open_link("udpout:127.0.0.1:0")
+
+
+def test_nobody_there_is_reported():
+    port = free_udp_port()
+    with pytest.raises(GimbalNotFound, match=f"no gimbal HEARTBEAT .* on udpout:127.0.0.1:{port} within 0.3 s"):
+        MavlinkGimbal(f"udpout:127.0.0.1:{port}", discover_timeout_s=0.3)
+
+
+# ---------------------------------------------------------------------------------- discovery and the stream
+def test_discovery_and_information():
+    with lockstep_pair() as (device, gimbal):
+        info = gimbal.info
+        assert gimbal.target == (1, 154)
+        assert (info.vendor_name, info.firmware_version) == ("gimbal-lab", gimbal_lab.__version__)
+        # the lab's limits (yaw ±170°, roll ±45°, pitch −90°..45°), yaw's sign turned, in float32
+        assert np.allclose(info.yaw_limits_rad, (D(-170), D(170)), atol=1e-7)
+        assert np.allclose(info.roll_limits_rad, (D(-45), D(45)), atol=1e-7)
+        assert np.allclose(info.pitch_limits_rad, (D(-90), D(45)), atol=1e-7)
+        assert np.allclose(info.joint_limits_rad, device.kinematics.joint_limits_rad, atol=1e-7)
+        # HAS_NEUTRAL 2, ROLL_AXIS 4, ROLL_LOCK 16, PITCH_AXIS 32, PITCH_LOCK 128, YAW_AXIS 256,
+        # YAW_FOLLOW 512, YAW_LOCK 1024, SUPPORTS_YAW_IN_EARTH_FRAME 4096; no roll/pitch follow
+        assert info.cap_flags == 2 | 4 | 16 | 32 | 128 | 256 | 512 | 1024 | 4096
+
+
+def test_information_turns_the_yaw_range():
+    """A gimbal that yaws 100° right and 150° left: the protocol's yaw (positive right) spans
+    −150°..100°."""
+    kin = GimbalKinematics(joint_limits_rad=((D(-100), D(150)), (D(-30), D(40)), (D(-80), D(20))))
+    with lockstep_pair(kinematics=kin) as (device, gimbal):
+        info = gimbal.info
+    assert np.allclose(info.yaw_limits_rad, (D(-150), D(100)), atol=1e-7)
+    assert np.allclose(info.roll_limits_rad, (D(-30), D(40)), atol=1e-7)
+    assert np.allclose(info.pitch_limits_rad, (D(-80), D(20)), atol=1e-7)
+    assert np.allclose(info.joint_limits_rad, kin.joint_limits_rad, atol=1e-7)
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 30.0])
+def test_status_count_is_exact_in_lockstep(rate_hz):
+    with lockstep_pair(status_rate_hz=rate_hz) as (device, gimbal):
+        assert gimbal.step(1.0) == 1.0
+        times_ms = [round(r.time_s * 1000) for r in gimbal.reports()]
+    # a status every 1/rate s from one period after the start, at the first whole ms at or after it
+    n = int(rate_hz)
+    assert times_ms == [-(-k * 1000 // n) for k in range(1, n + 1)]
+
+
+@pytest.mark.parametrize("omega, joint, joint_rate", [
+    ((0.0, 0.0, 0.5), 0, -0.5),   # yawing right: the lab's yaw joint turns at −0.5 rad/s
+    ((0.2, 0.0, 0.0), 1, 0.2),    # rolling right: roll joint +0.2 rad/s
+    ((0.0, 0.3, 0.0), 2, 0.3),    # pitching up: pitch joint +0.3 rad/s
+])
+def test_rate_command_turns_its_joint_at_the_commanded_rate(omega, joint, joint_rate):
+    with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_rates(omega)
+        gimbal.step(1.0)
+        reports = gimbal.reports()
+    assert abs(slope(reports, joint, 0.5, 1.0) - joint_rate) < 1e-6
+    others = [i for i in range(3) if i != joint]
+    assert max(abs(r.q_rad[i]) for r in reports for i in others) < F32
+    assert np.abs(reports[-1].angular_velocity_rad_s - omega).max() < 1e-6
+    # the simulation's own joints agree with what the protocol carried
+    assert abs(device.q_rad[joint] - reports[-1].q_rad[joint]) < F32
+
+
+def test_attitude_command_converges():
+    with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_attitude(D(30), D(-20))
+        gimbal.step(1.0)
+        report = gimbal.latest()
+        assert np.abs(np.array(report.euler_rad) - (D(30), D(-20), 0.0)).max() < 1e-5
+        # yaw 30° right is the lab's yaw joint at −30°; pitch −20° the pitch joint at −20°
+        assert np.abs(report.q_rad - (D(-30), 0.0, D(-20))).max() < 1e-5
+        assert np.abs(device.q_rad - report.q_rad).max() < 1e-5
+        gimbal.send_neutral()
+        gimbal.step(1.0)
+        assert np.abs(gimbal.latest().q_rad).max() < 1e-5
+
+
+def test_a_large_attitude_step_slews_at_the_rate_limit():
+    with lockstep_pair(status_rate_hz=50.0, max_rate_rad_s=1.0) as (device, gimbal):
+        gimbal.send_attitude(D(90), 0.0)  # 1.57 rad at 1 rad/s: still slewing from 0.2 s to 1.2 s
+        gimbal.step(1.0)
+        reports = gimbal.reports()
+    assert abs(slope(reports, 0, 0.5, 1.0) + 1.0) < 1e-6
+
+
+def test_earth_frame_on_a_turned_body():
+    """The body faces 0.4 rad left of North (NED heading −0.4 rad): yaw 30° in the earth frame is
+    30° + 0.4 rad right of the body's heading; in the vehicle frame it is 30° right of it."""
+    with lockstep_pair(body=BodyMotion(yaw_rad=0.4)) as (device, gimbal):
+        gimbal.send_attitude(D(30), D(-20), frame="earth")
+        gimbal.step(1.0)
+        report = gimbal.latest()
+        assert report.frame == "vehicle" and report.flags & YAW_LOCK
+        assert abs(report.delta_yaw_rad + 0.4) < 1e-7
+        assert np.abs(np.array(report.euler_rad) - (D(30) + 0.4, D(-20), 0.0)).max() < 1e-5
+        assert same_rotation(report.quaternion_in("earth"), _hand_quaternion_30_minus_20(), 1e-5)
+        gimbal.send_attitude(D(30), D(-20), frame="vehicle")
+        gimbal.step(1.0)
+        assert np.abs(np.array(gimbal.latest().euler_rad) - (D(30), D(-20), 0.0)).max() < 1e-5
+
+
+def same_rotation(a, b, tol):
+    return min(np.abs(np.asarray(a) - b).max(), np.abs(np.asarray(a) + b).max()) < tol
+
+
+def test_reports_on_a_swaying_body_are_the_camera_in_the_earth():
+    """On a hovering body (sway and heading wander) the report, turned into the earth frame with
+    its delta yaw, is the camera's true attitude: F·R_world_cam·R_cam_gimbal from the mount's own
+    recorded joints and the body's pose (gimbal_lab.mount.camera_pose)."""
+    F = np.diag([1.0, -1.0, -1.0])
+    P = np.column_stack([(0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
+    with lockstep_pair(body=BodyMotion.hover(seed=2), duration_s=0.6, status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_attitude(D(20), D(-10), frame="earth")
+        gimbal.step(0.5)
+        reports = gimbal.reports()
+        camera_fn = device.mount.recorded_pose_fn(0.0, 0.5)
+    headings = []
+    for r in reports:
+        _, T_world_cam = camera_fn(r.time_s)
+        expected = frames.quaternion_from_matrix(F @ T_world_cam[:3, :3] @ P)
+        assert same_rotation(r.quaternion_in("earth"), expected, 4 * F32)
+        # delta yaw is the body's heading: its Z-Y-X yaw about up, with NED's sign (about down)
+        R_world_body = device.body.T_world_body(r.time_s)[:3, :3]
+        assert abs(r.delta_yaw_rad + math.atan2(R_world_body[1, 0], R_world_body[0, 0])) < 1e-7
+        headings.append(r.delta_yaw_rad)
+    assert np.ptp(headings) > 1e-3  # the heading did wander, so delta yaw was exercised
+
+
+def test_joint_limit_stops_the_axis_and_is_flagged():
+    with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_rates([0.0, 1.0, 0.0])  # pitch up at 1 rad/s towards +45°
+        gimbal.step(2.0)
+        reports = gimbal.reports()
+    pitch = np.array([r.q_rad[2] for r in reports])
+    assert pitch.max() <= D(45) + 1e-6
+    assert D(45) - pitch[-1] < 1e-6
+    assert reports[-1].failure_flags & AT_PITCH_LIMIT and not reports[0].failure_flags
+
+
+# ---------------------------------------------------------------------------------- link effects
+def test_latency_delays_statuses_and_commands():
+    with lockstep_pair(status_rate_hz=50.0, latency_s=0.05) as (device, gimbal):
+        gimbal.step(1.0)
+        reports = gimbal.reports()
+        # the sample of 0.94 s left at 0.99 s; that of 0.96 s leaves at 1.01 s
+        assert len(reports) == 47 and reports[-1].time_s == 0.94
+        gimbal.send_rates([0.0, 0.0, 0.5])  # sent at 1.00 s, takes effect at 1.05 s
+        gimbal.step(0.5)
+        reports = gimbal.reports()
+    still = [r for r in reports if r.time_s <= 1.05]
+    moving = [r for r in reports if r.time_s > 1.05]
+    assert [r.time_s for r in still] == [0.96, 0.98, 1.0, 1.02, 1.04]
+    # at rest the DH chain's cos(90°) offsets leave ~1e-16 rad; 10 ms of 0.5 rad/s is ~1e-3 rad
+    assert all(abs(r.q_rad[0]) < 1e-12 for r in still)
+    assert all(r.q_rad[0] < -1e-5 for r in moving)
+
+
+def test_without_latency_the_command_acts_at_once():
+    with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
+        gimbal.step(1.0)
+        gimbal.reports()
+        gimbal.send_rates([0.0, 0.0, 0.5])
+        gimbal.step(0.1)
+        assert gimbal.reports()[0].q_rad[0] < -1e-5  # the sample at 1.02 s
+
+
+def test_quantisation_of_reported_angles():
+    quantum = D(0.1)
+
+    def residues(reports):
+        angles = np.array([r.euler_rad for r in reports])
+        return np.abs(angles / quantum - np.round(angles / quantum)) * quantum
+
+    with lockstep_pair(status_rate_hz=50.0, quantum_rad=quantum) as (device, gimbal):
+        gimbal.send_rates([0.05, 0.3, 0.5])
+        gimbal.step(1.0)
+        coarse = residues(gimbal.reports())
+    with lockstep_pair(status_rate_hz=50.0) as (device, gimbal):
+        gimbal.send_rates([0.05, 0.3, 0.5])
+        gimbal.step(1.0)
+        fine = residues(gimbal.reports())
+    assert coarse.max() < 1e-6  # on the 0.1° grid to float32 rounding
+    assert fine.max() > 1e-4  # the exact angles are not
+
+
+def _received_times(seed, loss, seconds=2.0):
+    with lockstep_pair(status_rate_hz=50.0, loss=loss, seed=seed) as (device, gimbal):
+        for _ in range(int(seconds / 0.2)):
+            gimbal.step(0.2)
+        reports = gimbal.reports()
+        return [r.time_s for r in reports], [r.seq for r in reports], device.statuses_lost
+
+
+def test_loss_is_seeded():
+    times, seqs, lost = _received_times(seed=7, loss=0.3)
+    again, _, _ = _received_times(seed=7, loss=0.3)
+    other, _, _ = _received_times(seed=8, loss=0.3)
+    # the n-th status is lost when the n-th draw of default_rng(seed).random() is below the loss
+    draws = np.random.default_rng(7).random(100)
+    expected = [round(0.02 * (n + 1), 2) for n in range(100) if draws[n] >= 0.3]
+    assert [round(t, 2) for t in times] == expected and lost == 100 - len(expected)
+    assert times == again and times != other
+    # a lost status spends its sequence number: the receiver sees a gap of at least the losses
+    sent = [round(0.02 * (n + 1), 2) for n in range(100)]
+    for (t0, s0), (t1, s1) in zip(zip(times, seqs), zip(times[1:], seqs[1:])):
+        lost_between = sent.index(round(t1, 2)) - sent.index(round(t0, 2)) - 1
+        assert (s1 - s0) % 256 >= lost_between + 1
+
+
+def test_commanded_only_reports_the_command():
+    with lockstep_pair(status_rate_hz=50.0, commanded_only=True) as (device, gimbal):
+        gimbal.send_attitude(D(30), D(-20))
+        gimbal.step(0.02)
+        report = gimbal.latest()
+        # the commanded attitude at once, while the joints have hardly begun to move
+        assert np.abs(np.array(report.euler_rad) - (D(30), D(-20), 0.0)).max() < F32
+        assert abs(device.q_rad[0] - D(-30)) > D(20)
+        assert np.all(np.isnan(report.angular_velocity_rad_s))
+        gimbal.send_rates([0.0, 0.0, 0.5])
+        gimbal.step(0.1)
+        report = gimbal.latest()
+        # the integral of the commanded rate from the commanded attitude: yaw 30° + 0.5·0.1 rad
+        assert np.abs(np.array(report.euler_rad) - (D(30) + 0.05, D(-20), 0.0)).max() < F32
+        assert np.abs(report.angular_velocity_rad_s - (0.0, 0.0, 0.5)).max() < 6e-8
+
+
+def test_lockstep_runs_are_identical():
+    def run():
+        with lockstep_pair(status_rate_hz=40.0, latency_s=0.013, loss=0.2, seed=3, quantum_rad=D(0.01)) as (_, gimbal):
+            for k in range(10):
+                gimbal.send_rates([0.1 * math.sin(k), 0.2, -0.3 * math.cos(k)])
+                gimbal.step(0.05)
+            gimbal.send_attitude(D(10), D(5))
+            gimbal.step(0.3)
+            return [(r.time_s, r.quaternion.tobytes(), r.angular_velocity_rad_s.tobytes()) for r in gimbal.reports()]
+
+    first, second = run(), run()
+    assert len(first) > 10 and first == second
+
+
+def test_steps_past_the_end_or_in_real_time_are_refused():
+    with lockstep_pair(duration_s=1.0) as (device, gimbal):
+        assert gimbal.step(0.6) == 0.6
+        with pytest.raises(GimbalCommandFailed, match="refused a step of 0.5 s .*DENIED.* clock is at 0.6 s"):
+            gimbal.step(0.5)
+        assert gimbal.step(0.4) == 1.0
+    with running_device(lockstep=False) as (device, address, _):
+        with MavlinkGimbal(address, lockstep=True) as gimbal:
+            with pytest.raises(GimbalCommandFailed, match="DENIED"):
+                gimbal.step(0.1)
+
+
+# ---------------------------------------------------------------------------------- real time and liveness
+def test_real_time_stream_and_a_stopped_device():
+    with running_device(lockstep=False, status_rate_hz=20.0) as (device, address, stop):
+        with MavlinkGimbal(address, timeout_s=0.5) as gimbal:
+            first = gimbal.wait_report(timeout_s=LIVENESS_S)
+            while gimbal.wait_report(timeout_s=LIVENESS_S).time_s < first.time_s + 0.5:
+                pass
+            times_ms = [round(r.time_s * 1000) for r in gimbal.reports()]
+            # stamped on the simulated clock's grid: exactly every 50 ms, whatever the wall clock did
+            assert len(times_ms) >= 10 and set(np.diff(times_ms)) == {50}
+            stop.set()  # the device stops serving and falls silent
+            with pytest.raises(GimbalLinkLost, match="is silent: no message from it for") as lost:
+                while True:
+                    gimbal.wait_report(timeout_s=LIVENESS_S)
+            assert lost.value.silence_s > 0.5
+            with pytest.raises(GimbalLinkLost):
+                gimbal.latest()
+
+
+def test_a_failing_link_is_reported():
+    class Broken(Link):
+        address = "broken"
+
+        def read(self, timeout_s):
+            raise OSError(5, "Input/output error")
+
+        def write(self, data):
+            pass
+
+    gimbal = MavlinkGimbal(Broken(), target=(1, 154), request_info=False)
+    try:
+        with pytest.raises(GimbalLinkLost, match="the link broken failed: .*Input/output error"):
+            gimbal.wait_report(timeout_s=LIVENESS_S)
+    finally:
+        gimbal.close()
+
+
+def test_killed_device_process_is_noticed():
+    port = free_udp_port()
+    proc = subprocess.Popen(cli("--listen", f"udpin:127.0.0.1:{port}", "--status-rate-hz", "20"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(proc, "Ctrl-C stops")
+        with MavlinkGimbal(f"udpout:127.0.0.1:{port}", discover_timeout_s=LIVENESS_S) as gimbal:
+            gimbal.wait_report(timeout_s=LIVENESS_S)
+            proc.kill()
+            proc.wait(LIVENESS_S)
+            killed = time.monotonic()
+            with pytest.raises(GimbalLinkLost) as lost:
+                while True:
+                    gimbal.wait_report(timeout_s=LIVENESS_S)
+            noticed = time.monotonic() - killed
+        # the default timeout is 1 s of silence; this bound only guards against never noticing
+        assert 1.0 < lost.value.silence_s and noticed < LIVENESS_S
+    finally:
+        proc.kill()
+        proc.communicate()
+
+
+def test_ctrl_c_exits_130_with_a_message():
+    port = free_udp_port()
+    proc = subprocess.Popen(cli("--listen", f"udpin:127.0.0.1:{port}"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(proc, "Ctrl-C stops")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=LIVENESS_S)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "gimbal-device: interrupted at" in out and "Traceback" not in err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--status-rate-hz", "0"], "--status-rate-hz must be > 0"),
+    (["--loss", "1"], "--loss must be in [0, 1)"),
+    (["--latency-s", "-0.1"], "--latency-s must be >= 0"),
+    (["--listen", "tcp:127.0.0.1:1"], "--listen: a link address must be udpin:HOST:PORT"),
+    (["--listen", "/dev/no-such-port"], "--listen: cannot open serial port '/dev/no-such-port'"),
+    (["--status-rate-hz", "fast"], "argument --status-rate-hz: invalid float value"),
+])
+def test_bad_arguments_give_one_line_and_exit_2(args, message, capsys):
+    from gimbal_lab.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["gimbal-device", *args])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert done.value.code == 2 and len(lines) == 1, err
+    assert message in lines[0] and lines[0].startswith("gimbal-lab gimbal-device: error:")
+
+
+def test_without_the_extra_the_command_says_what_to_install(monkeypatch, capsys):
+    from gimbal_lab.cli import main
+
+    monkeypatch.setitem(sys.modules, "pymavlink", None)  # as if it were not installed
+    assert main(["gimbal-device"]) == 1
+    assert "needs pymavlink: pip install 'gimbal-lab[mavlink]'" in capsys.readouterr().err
+
+
+def test_bad_argument_from_the_command_line():
+    done = subprocess.run(cli("--loss", "2"), capture_output=True, text=True, timeout=LIVENESS_S)
+    assert done.returncode == 2 and done.stderr.strip() == "gimbal-lab gimbal-device: error: --loss must be in [0, 1), got 2"
+
+
+# ---------------------------------------------------------------------------------- serial links
+def test_serial_pseudo_terminal_lockstep():
+    """The device command on the slave side of a pty pair (opened by pyserial as a serial port),
+    the driver on the master side."""
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo or line editing before the device's pyserial takes the port
+    proc = subprocess.Popen(cli("--listen", os.ttyname(slave), "--lockstep", "--status-rate-hz", "25"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(proc, "Ctrl-C stops")
+        with MavlinkGimbal(FdLink(master, address="pty"), lockstep=True, discover_timeout_s=LIVENESS_S) as gimbal:
+            assert gimbal.target == (1, 154) and gimbal.info.model_name == "simulated yaw-roll-pitch"
+            gimbal.send_rates([0.0, 0.3, 0.0])
+            assert gimbal.step(1.0) == 1.0
+            reports = gimbal.reports()
+        assert [round(r.time_s * 1000) for r in reports] == list(range(40, 1001, 40))
+        assert abs(slope(reports, 2, 0.6, 1.0) - 0.3) < 1e-6
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=LIVENESS_S)
+        finally:
+            proc.kill()
+            os.close(slave)
+    assert proc.returncode == 130
+
+
+def test_loop_url_carries_a_packet_back():
+    link = SerialLink("loop://")
+    try:
+        sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=154)
+        packet = sender.gimbal_device_attitude_status_encode(0, 0, 1234, 44, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0,
+                                                             0.0, 0.0, 0).pack(sender)
+        link.write(packet)
+        data = b""
+        deadline = time.monotonic() + LIVENESS_S
+        while len(data) < len(packet) and time.monotonic() < deadline:
+            data += link.read(0.1)
+        (msg,) = mavlink.MAVLink(None).parse_buffer(data)
+        assert msg.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS" and msg.time_boot_ms == 1234
+    finally:
+        link.close()
+
+
+# ---------------------------------------------------------------------------------- the device's parts
+def test_device_parameters_are_checked():
+    with pytest.raises(ValueError, match="status_rate_hz must be finite and > 0"):
+        LinkEffects(status_rate_hz=0)
+    with pytest.raises(ValueError, match="loss must be in"):
+        LinkEffects(loss=1.0)
+    with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+        LinkEffects(seed=-1)
+    with pytest.raises(ValueError, match="duration_s must be finite and > 0"):
+        simulated_gimbal(duration_s=0)
+    assert firmware_version_word("0.2.0") == 2 << 8 and firmware_version_word("1.2.3") == (3 << 16) | (2 << 8) | 1
