@@ -30,10 +30,15 @@ Paper §3.2 (pinhole model, K) and §4.1 (Brown–Conrady radial distortion of t
 
 from __future__ import annotations
 
+import functools
 import math
+import struct
+import sys
 from dataclasses import dataclass
 
 import numpy as np
+
+_EPS = float(np.finfo(float).eps)
 
 __all__ = [
     "Intrinsics",
@@ -62,6 +67,98 @@ def _finite_float(name: str, value) -> float:
     if not math.isfinite(out):
         raise ValueError(f"{name} must be finite, got {out}")
     return out
+
+
+def _check_pixels(name: str, value) -> int:
+    """A positive whole number of pixels (an int, or a float with no fraction), as an int."""
+    try:
+        whole = not isinstance(value, bool) and float(value).is_integer() and value > 0
+    except (TypeError, ValueError):
+        whole = False
+    if not whole:
+        raise ValueError(f"{name} must be a positive integer number of pixels, got {value!r}")
+    return int(value)
+
+
+def _float_bits(value: float) -> int:
+    """The IEEE-754 bit pattern of a float ≥ 0 as an integer: it rises with the value."""
+    return struct.unpack("<q", struct.pack("<d", value))[0]
+
+
+def _bits_float(bits: int) -> float:
+    return struct.unpack("<d", struct.pack("<q", bits))[0]
+
+
+def _polyval(coeffs: tuple[float, ...], s: float) -> float:
+    """Σ coeffs[i]·s^i by Horner's rule (overflow gives ±inf, never NaN for s > 0)."""
+    value = 0.0
+    for c in reversed(coeffs):
+        value = value * s + c
+    return value
+
+
+def _positive_roots(coeffs: tuple[float, ...]) -> list[float]:
+    """Every positive root of Σ coeffs[i]·s^i (ascending powers), sorted, each to the last bit.
+
+    Between consecutive positive roots of the derivative (found the same way) the polynomial is
+    monotonic, so each stretch holds at most one root, bracketed by a change of sign and found by
+    bisecting the floats' bit patterns (64 steps, whatever the magnitudes). Unlike eigenvalues of
+    the companion matrix (``np.roots``), this neither loses small roots beside huge ones nor fails
+    when the highest coefficient is tiny. A root where the polynomial only touches zero is found
+    when it evaluates to exactly zero there.
+    """
+    coeffs = tuple(coeffs)
+    while coeffs and coeffs[-1] == 0.0:
+        coeffs = coeffs[:-1]
+    while coeffs and coeffs[0] == 0.0:  # s^m·q(s): q has the same positive roots
+        coeffs = coeffs[1:]
+    if len(coeffs) < 2:
+        return []
+    derivative = tuple(i * c for i, c in enumerate(coeffs) if i)
+    ends = [0.0, *_positive_roots(derivative)]
+    sign_at_infinity = math.copysign(1.0, coeffs[-1])
+    top = max(ends[-1], 1.0)
+    while math.isfinite(top) and math.copysign(1.0, _polyval(coeffs, top)) != sign_at_infinity:
+        top *= 2.0
+    ends.append(top)
+    roots = []
+    for lo, hi in zip(ends[:-1], ends[1:]):
+        f_lo, f_hi = _polyval(coeffs, lo), _polyval(coeffs, hi)
+        if f_hi == 0.0 and hi > 0.0:
+            roots.append(hi)
+            continue
+        if f_lo == 0.0 or (f_lo > 0.0) == (f_hi > 0.0):
+            continue
+        a, b = _float_bits(lo), _float_bits(hi)
+        while b - a > 1:
+            mid = (a + b) // 2
+            if (_polyval(coeffs, _bits_float(mid)) > 0.0) == (f_lo > 0.0):
+                a = mid
+            else:
+                b = mid
+        roots.append(_bits_float(b))
+    return sorted(set(r for r in roots if r > 0.0))
+
+
+@functools.lru_cache(maxsize=256)
+def _first_positive_root(terms: tuple[tuple[str, float, int], ...]) -> float:
+    """Smallest positive root s of 1 + Σ w·c·s^i over ``terms`` = ((name, c, w), ...) for i = 1, 2, …
+
+    Used for where a lens's radial map stops rising. Returns ``inf`` when there is none.
+
+    Raises
+    ------
+    ValueError
+        A coefficient so large that w·c overflows a double; the message names it.
+    """
+    poly = [1.0]
+    for name, value, weight in terms:
+        poly.append(weight * value)
+        if not math.isfinite(poly[-1]):
+            raise ValueError(f"lens coefficient {name} = {value!r} is too large: {weight}·{name} overflows a double; "
+                             f"allowed: |{name}| < {sys.float_info.max / weight:.3g}")
+    roots = _positive_roots(tuple(poly))
+    return roots[0] if roots else math.inf
 
 
 def _as_points(name: str, array, dim: int) -> np.ndarray:
@@ -109,21 +206,29 @@ class Intrinsics:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0 px, got {getattr(self, name)}")
         for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not float(value).is_integer() or value <= 0:
-                raise ValueError(f"{name} must be a positive integer number of pixels, got {value!r}")
-            object.__setattr__(self, name, int(value))
+            object.__setattr__(self, name, _check_pixels(name, getattr(self, name)))
 
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_rad: float) -> "Intrinsics":
         """Square pixels, principal point at the image centre, horizontal field of view ``hfov_rad``.
 
         fx = fy = (W/2) / tan(hfov/2), cx = (W − 1)/2, cy = (H − 1)/2.
+
+        Raises
+        ------
+        ValueError
+            ``hfov_rad`` is not a normal positive float below π (0, a subnormal, inf, NaN, ≥ π),
+            or is so small that the focal length overflows; a size that is not a positive integer.
         """
         hfov_rad = _finite_float("hfov_rad", hfov_rad)
-        if not 0.0 < hfov_rad < math.pi:
-            raise ValueError(f"hfov_rad must be in (0, pi), got {hfov_rad}")
+        if not sys.float_info.min <= hfov_rad < math.pi:
+            raise ValueError(f"hfov_rad must be a normal positive float below pi rad (180°), got {hfov_rad!r}")
+        for name, value in (("width", width), ("height", height)):
+            _check_pixels(name, value)
         f = (width / 2.0) / math.tan(hfov_rad / 2.0)
+        if not math.isfinite(f):
+            raise ValueError(f"hfov_rad = {hfov_rad!r} is too small: the focal length (W/2)/tan(hfov/2) overflows "
+                             f"for width {width} px")
         return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height)
 
     @classmethod
@@ -178,6 +283,7 @@ class BrownConrady:
     def __post_init__(self):
         for name in ("k1", "k2", "p1", "p2", "k3"):
             object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+        self.radial_limit()  # refuses coefficients whose fold radius cannot be computed, naming them
 
     @classmethod
     def default(cls) -> "BrownConrady":
@@ -233,10 +339,7 @@ class BrownConrady:
         smallest positive root of 1 + 3 k1 s + 5 k2 s² + 7 k3 s³ (s = r²). Returns ``inf`` when
         the map rises everywhere.
         """
-        roots = np.roots([7 * self.k3, 5 * self.k2, 3 * self.k1, 1.0])
-        real = roots[np.isreal(roots)].real
-        positive = real[real > 0]
-        return float(np.sqrt(positive.min())) if positive.size else math.inf
+        return math.sqrt(_first_positive_root((("k1", self.k1, 3), ("k2", self.k2, 5), ("k3", self.k3, 7))))
 
 
 @dataclass(frozen=True)
@@ -291,11 +394,8 @@ class KannalaBrandt:
 
     def _rising_limit(self) -> float:
         # dθ_d/dθ = 1 + 3 k1 θ² + 5 k2 θ⁴ + 7 k3 θ⁶ + 9 k4 θ⁸, a polynomial in s = θ²
-        roots = np.roots([9 * self.k4, 7 * self.k3, 5 * self.k2, 3 * self.k1, 1.0])
-        real = roots[np.isreal(roots)].real
-        positive = np.sqrt(real[real > 0])
-        positive = positive[positive <= math.pi]
-        return float(positive.min()) if positive.size else math.pi
+        s = _first_positive_root((("k1", self.k1, 3), ("k2", self.k2, 5), ("k3", self.k3, 7), ("k4", self.k4, 9)))
+        return min(math.sqrt(s), math.pi)
 
     @classmethod
     def equidistant_for_fov(cls, width_px: int, hfov_rad: float) -> tuple["KannalaBrandt", float]:
@@ -420,50 +520,188 @@ def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
         return xy.copy()
     if isinstance(d, KannalaBrandt):
         return _fisheye_distort(xy, d)
-    x, y = xy[:, 0], xy[:, 1]
+    return np.column_stack(_brown_conrady(xy[:, 0], xy[:, 1], d))
+
+
+def _brown_conrady(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> tuple[np.ndarray, np.ndarray]:
+    """The Brown–Conrady map (module docstring) on coordinate arrays: (x_d, y_d)."""
     r2 = x * x + y * y
     radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
     xd = x * radial + 2.0 * d.p1 * x * y + d.p2 * (r2 + 2.0 * x * x)
     yd = y * radial + d.p1 * (r2 + 2.0 * y * y) + 2.0 * d.p2 * x * y
-    return np.column_stack((xd, yd))
+    return xd, yd
 
 
 def _distort_jacobian(x, y, d: BrownConrady):
-    """Partial derivatives of (x_d, y_d) with respect to (x, y), each of shape (N,)."""
+    """Partial derivatives of (x_d, y_d) with respect to (x, y), each of shape (N,).
+
+    Returns (∂x_d/∂x, ∂x_d/∂y, ∂y_d/∂x, ∂y_d/∂y); the two mixed ones are equal.
+    """
     r2 = x * x + y * y
     radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
-    dradial_dr2 = d.k1 + r2 * (2.0 * d.k2 + 3.0 * d.k3 * r2)
-    dxx = radial + 2.0 * x * x * dradial_dr2 + 2.0 * d.p1 * y + 6.0 * d.p2 * x
-    dxy = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y
-    dyx = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y
-    dyy = radial + 2.0 * y * y * dradial_dr2 + 6.0 * d.p1 * y + 2.0 * d.p2 * x
-    return dxx, dxy, dyx, dyy
+    two_dradial = 2.0 * (d.k1 + r2 * (2.0 * d.k2 + 3.0 * d.k3 * r2))
+    dxx = radial + x * (x * two_dradial + 6.0 * d.p2) + 2.0 * d.p1 * y
+    dyy = radial + y * (y * two_dradial + 6.0 * d.p1) + 2.0 * d.p2 * x
+    dxy = x * (y * two_dradial + 2.0 * d.p1) + 2.0 * d.p2 * y
+    return dxx, dxy, dxy, dyy
+
+
+def _radial_map(r, d: BrownConrady):
+    """r·L(r) and its derivative d/dr, for the radial part of ``d`` (arrays of radii)."""
+    r2 = r * r
+    value = r * (1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3)))
+    slope = 1.0 + r2 * (3.0 * d.k1 + r2 * (5.0 * d.k2 + r2 * 7.0 * d.k3))
+    return value, slope
+
+
+def _radial_preimage(rd: np.ndarray, d: BrownConrady, r_limit: float, max_iter: int = 200) -> np.ndarray:
+    """Radius r in [0, r_limit] with r·L(r) = rd for the radial part alone (safeguarded Newton).
+
+    r·L(r) rises on [0, r_limit], so the root is unique there; a radius beyond the image of the
+    disc, r_limit·L(r_limit), comes back as r_limit. The iteration keeps a bracket [lo, hi] and
+    bisects whenever a Newton step leaves it (or is not finite), so it cannot leave the disc;
+    it stops when a step moves r by at most 2 ε r.
+    """
+    if math.isfinite(r_limit):
+        hi = np.full_like(rd, r_limit)
+    else:  # the map rises without bound: double until it passes rd
+        hi = np.maximum(rd, 1.0)
+        for _ in range(2100):
+            below = _radial_map(hi, d)[0] < rd
+            if not below.any():
+                break
+            hi = np.where(below, 2.0 * hi, hi)
+    out = np.empty_like(rd)
+    active = np.arange(len(rd))
+    lo, r, target = np.zeros_like(rd), np.minimum(rd, hi), rd
+    for _ in range(max_iter):
+        value, slope = _radial_map(r, d)
+        f = value - target
+        lo = np.where(f <= 0, r, lo)
+        hi = np.where(f >= 0, r, hi)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            r_new = r - f / slope
+        out_of_bracket = ~np.isfinite(r_new) | (r_new <= lo) | (r_new >= hi)
+        r_new = np.where(out_of_bracket, 0.5 * (lo + hi), r_new)
+        converged = (np.abs(r_new - r) <= 2.0 * _EPS * r_new) | (f == 0)
+        out[active[converged]] = r_new[converged]
+        keep = ~converged
+        active, r, lo, hi, target = active[keep], r_new[keep], lo[keep], hi[keep], target[keep]
+        if active.size == 0:
+            break
+    out[active] = r  # not converged within max_iter: the caller's residual test refuses these
+    return out
+
+
+def _residual_floor(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> np.ndarray:
+    """Rounding bound of |distort(x) − x_d| in double precision, per point (N,).
+
+    Horner's rule and the tangential sums take about a dozen roundings, each at most ε times
+    the sum of the terms' magnitudes r (1 + |k1| r² + |k2| r⁴ + |k3| r⁶) + 4 (|p1| + |p2|) r²;
+    16 ε times that sum bounds the residual's own error, below which no iteration can go.
+    """
+    r2 = x * x + y * y
+    radial = abs(d.k1) + r2 * (abs(d.k2) + r2 * abs(d.k3))
+    return 16.0 * _EPS * (np.sqrt(r2) * (1.0 + r2 * radial) + 4.0 * (abs(d.p1) + abs(d.p2)) * r2)
+
+
+def _newton_in_disc(x, y, xd, yd, d: BrownConrady, r_limit: float, tol: float, max_iter: int):
+    """Damped Newton iteration for distort(x, y) = (xd, yd) from starts inside the disc |x| < r_limit.
+
+    A step is halved until it stays inside the disc and lowers the residual; a point whose step
+    cannot do both (or whose Jacobian is singular) stops there. Works on copies of the coordinate
+    arrays; returns (x, y, done) with done where |distort − target| ≤ max(tol, :func:`_residual_floor`).
+    """
+    x, y = x.copy(), y.copy()
+    r2_limit = r_limit * r_limit
+    fx, fy = _brown_conrady(x, y, d)
+    ex, ey = fx - xd, fy - yd
+    err = np.hypot(ex, ey)
+
+    def converged(e, u, v):  # e ≤ max(tol, floor); the floor is evaluated only where e > tol
+        ok = e <= tol
+        rest = np.flatnonzero(~ok)
+        if rest.size:
+            ok[rest] = e[rest] <= _residual_floor(u[rest], v[rest], d)
+        return ok
+
+    done = converged(err, x, y)
+    active = np.flatnonzero(~done)
+    for _ in range(max_iter):
+        if active.size == 0:
+            break
+        arrays = (x, y, ex, ey, err, xd, yd)
+        xa, ya, exa, eya, erra, xda, yda = arrays if active.size == len(x) else (a[active] for a in arrays)
+        dxx, dxy, dyx, dyy = _distort_jacobian(xa, ya, d)
+        det = dxx * dyy - dxy * dyx
+        regular = np.abs(det) > 1e-300
+        det[~regular] = 1.0
+        sx, sy = (dyy * exa - dxy * eya) / det, (dxx * eya - dyx * exa) / det
+        tx, ty = xa - sx, ya - sy
+        fx, fy = _brown_conrady(tx, ty, d)
+        etx, ety = fx - xda, fy - yda
+        et = np.hypot(etx, ety)
+        ok = regular & (tx * tx + ty * ty < r2_limit) & (et < erra)
+        retry, alpha = np.flatnonzero(regular & ~ok), 1.0
+        for _ in range(60):  # rare: halve the step until it stays inside and lowers the residual
+            if retry.size == 0:
+                break
+            alpha *= 0.5
+            hx, hy = xa[retry] - alpha * sx[retry], ya[retry] - alpha * sy[retry]
+            fx, fy = _brown_conrady(hx, hy, d)
+            hex_, hey = fx - xda[retry], fy - yda[retry]
+            he = np.hypot(hex_, hey)
+            good = (hx * hx + hy * hy < r2_limit) & (he < erra[retry])
+            took = retry[good]
+            tx[took], ty[took], etx[took], ety[took], et[took] = hx[good], hy[good], hex_[good], hey[good], he[good]
+            ok[took] = True
+            retry = retry[~good]
+        moved = active[ok]
+        x[moved], y[moved], ex[moved], ey[moved], err[moved] = tx[ok], ty[ok], etx[ok], ety[ok], et[ok]
+        finished = converged(et[ok], tx[ok], ty[ok])
+        done[moved[finished]] = True
+        active = moved[~finished]  # points that could not move stop there, not done
+    return x, y, done
 
 
 def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
-    """Invert the Brown–Conrady model on normalised coordinates (vectorised Newton iteration).
+    """Invert the lens model on normalised coordinates.
 
     Parameters
     ----------
     xy_norm : array_like, shape (N, 2) or (2,)
         Distorted normalised coordinates.
-    distortion : BrownConrady or None
+    distortion : BrownConrady, KannalaBrandt or None
         None (or all zeros) returns the input unchanged.
     tol : float
-        Convergence threshold on the residual |distort(x) − x_d| (normalised units).
+        Brown–Conrady: the iteration stops when |distort(x) − x_d| ≤ max(tol, the residual's
+        own rounding bound 16 ε Σ|terms|) (normalised units). An answer is then within about
+        that residual times ‖J⁻¹‖ of the exact preimage (J: the model's Jacobian there).
     max_iter : int
-        Newton iterations at most.
+        Newton iterations at most (each is damped: its step is halved until it stays inside the
+        monotonic disc and lowers the residual).
 
     Returns
     -------
     ndarray, shape (N, 2)
-        Undistorted coordinates x with distort(x) = x_d, inside the model's monotonic region.
+        Undistorted coordinates x with distort(x) = x_d, inside the model's monotonic disc.
 
     Raises
     ------
     UndistortionError
-        When a point has no preimage inside the monotonic region (the model folds over there),
-        or the iteration does not converge. The message counts the failing points.
+        When a point has no preimage inside the monotonic disc |x| < :meth:`BrownConrady.radial_limit`
+        (the model folds over there), or the iteration does not converge. The message counts the
+        failing points.
+
+    Notes
+    -----
+    Brown–Conrady: the radial part alone is inverted first, per point, by a bracketed Newton
+    iteration on [0, radial_limit] (the map r ↦ r·L(r) rises there, so the root is unique and
+    exists exactly when the distorted radius is below the image of the disc,
+    radial_limit·L(radial_limit)). That start lies inside the disc, where the full model
+    (with its tangential terms) is then solved by damped Newton steps that never leave it.
+    Starting at x_d itself, as OpenCV's fixed-point iteration does, fails for pincushion
+    lenses whose distorted radius exceeds the disc.
     """
     xd = _as_points("xy_norm", xy_norm, 2)
     d = _check_distortion(distortion)
@@ -480,44 +718,22 @@ def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_
                 "no normalised pinhole coordinates; use backproject for unit rays")
         return rays[:, :2] / rays[:, 2:3]
     r_limit = d.radial_limit()
-    x = xd.copy()
-    converged = np.zeros(len(xd), dtype=bool)
-    for _ in range(max_iter):
-        residual = distort(x, d) - xd
-        err = np.hypot(residual[:, 0], residual[:, 1])
-        converged = err < tol
-        if converged.all():
-            break
-        dxx, dxy, dyx, dyy = _distort_jacobian(x[:, 0], x[:, 1], d)
-        det = dxx * dyy - dxy * dyx
-        safe = np.abs(det) > 1e-300
-        det = np.where(safe, det, 1.0)
-        step_x = (dyy * residual[:, 0] - dxy * residual[:, 1]) / det
-        step_y = (-dyx * residual[:, 0] + dxx * residual[:, 1]) / det
-        step = np.column_stack((step_x, step_y))
-        step[converged | ~safe] = 0.0
-        trial = x - step
-        # Keep iterates inside the monotonic disc: halve steps that leave it.
-        for _ in range(30):
-            outside = np.hypot(trial[:, 0], trial[:, 1]) >= r_limit
-            if not outside.any():
-                break
-            step[outside] *= 0.5
-            trial = x - step
-        x = trial
-    residual = distort(x, d) - xd
-    err = np.hypot(residual[:, 0], residual[:, 1])
-    inside = np.hypot(x[:, 0], x[:, 1]) < r_limit
-    dxx, dxy, dyx, dyy = _distort_jacobian(x[:, 0], x[:, 1], d)
-    bad = ~((err < max(tol, 1e-11)) & inside & (dxx * dyy - dxy * dyx > 0))
+    rd = np.hypot(xd[:, 0], xd[:, 1])
+    r0 = _radial_preimage(rd, d, r_limit)
+    scale = np.where(rd > 0, r0 / np.where(rd > 0, rd, 1.0), 0.0)
+    x, y, done = _newton_in_disc(xd[:, 0] * scale, xd[:, 1] * scale, xd[:, 0], xd[:, 1], d, r_limit, tol, max_iter)
+    dxx, dxy, dyx, dyy = _distort_jacobian(x, y, d)
+    bad = ~(done & (x * x + y * y < r_limit * r_limit) & (dxx * dyy - dxy * dyx > 0))
     if bad.any():
-        worst = np.hypot(xd[bad, 0], xd[bad, 1]).max()
+        worst = float(rd[bad].max())
+        image = float(_radial_map(np.array(r_limit), d)[0]) if math.isfinite(r_limit) else math.inf
         raise UndistortionError(
             f"{int(bad.sum())} of {len(xd)} points have no preimage in the distortion model's "
-            f"monotonic region (undistorted radius < {r_limit:.4g}); largest distorted radius "
-            f"among them {worst:.4g} (normalised). The model folds over there."
+            f"monotonic disc (undistorted radius < {r_limit:.6g}, whose radial image reaches distorted "
+            f"radius {image:.6g}); largest distorted radius among them {worst:.6g} (normalised). "
+            "The model folds over there."
         )
-    return x
+    return np.column_stack((x, y))
 
 
 def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None = None) -> np.ndarray:

@@ -10,7 +10,8 @@ Three parts:
   target's 3-D corners projected with ``cv2.projectPoints``, so they are known exactly.
 * **Calibration.** :func:`calibrate` finds a chessboard or ChArUco board in a sequence of
   frames and runs ``cv2.calibrateCamera``; :func:`save_calibration` writes OpenCV FileStorage
-  YAML, :func:`load_calibration` reads that or a ROS ``camera_info`` YAML.
+  YAML, :func:`load_calibration` reads that or a ROS ``camera_info`` YAML (both live in
+  :mod:`gimbal_lab.calibration`, with the reader's rules).
 * **Tracking.** :func:`track` runs the sphere detector or the ArUco tracker over a video file,
   an image folder or a camera index and writes an annotated MP4 and a per-frame CSV.
 
@@ -30,7 +31,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import BrownConrady, Intrinsics, undistort
+from .calibration import Calibration, load_calibration, save_calibration
+from .camera import BrownConrady, Intrinsics, KannalaBrandt, project, undistort
 from .scene import linear_to_srgb
 
 __all__ = [
@@ -502,28 +504,6 @@ def _image_frames(files):
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class Calibration:
-    """A camera's intrinsics and lens, with how well they fit the board views.
-
-    Attributes
-    ----------
-    intrinsics : Intrinsics
-    distortion : BrownConrady
-        OpenCV's (k1, k2, p1, p2, k3).
-    rms_px : float
-        RMS reprojection error over every board corner of every view, pixels (NaN when
-        unknown, e.g. read from a ROS file).
-    views : int
-        Number of board views used.
-    """
-
-    intrinsics: Intrinsics
-    distortion: BrownConrady
-    rms_px: float = float("nan")
-    views: int = 0
-
-
 def _parse_pattern(pattern) -> tuple[int, int]:
     if isinstance(pattern, str):
         parts = pattern.lower().split("x")
@@ -636,77 +616,6 @@ def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float
                        float(rms), len(objects))
 
 
-def save_calibration(path, calibration: Calibration) -> Path:
-    """Write an OpenCV FileStorage YAML: image size, camera_matrix, distortion_coefficients, RMS."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    cam = calibration.intrinsics
-    fs.write("image_width", cam.width)
-    fs.write("image_height", cam.height)
-    fs.write("camera_matrix", cam.K)
-    fs.write("distortion_coefficients", calibration.distortion.coefficients.reshape(-1, 1))
-    fs.write("avg_reprojection_error", float(calibration.rms_px))
-    fs.write("views", int(calibration.views))
-    fs.release()
-    return path
-
-
-def _seq(node) -> np.ndarray:
-    if node.isSeq():
-        return np.array([node.at(i).real() for i in range(node.size())])
-    if node.isMap() and not node.getNode("data").empty():
-        return _seq(node.getNode("data"))
-    matrix = node.mat()
-    return None if matrix is None else np.asarray(matrix, float).reshape(-1)
-
-
-def load_calibration(path) -> Calibration:
-    """Read a calibration: OpenCV FileStorage YAML/XML (as written by :func:`save_calibration` or
-    OpenCV's samples) or a ROS ``camera_info`` YAML (``camera_matrix: {rows, cols, data}``,
-    ``distortion_model: plumb_bob``).
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file.
-    ValueError
-        The file lacks the image size, the camera matrix or the distortion coefficients.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such calibration file: {str(path)!r}")
-    text = path.read_text(errors="replace")
-    if path.suffix.lower() in (".yaml", ".yml") and not text.lstrip().startswith("%YAML"):
-        text = "%YAML:1.0\n" + text  # ROS files carry no directive; FileStorage wants one
-    try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError) as exc:  # the binding raises SystemError on some parse errors
-        reason = exc.err if isinstance(exc, cv2.error) else "parse error"
-        raise ValueError(f"{str(path)!r} is not a readable YAML/XML calibration: {reason}") from None
-    try:
-        width, height = fs.getNode("image_width"), fs.getNode("image_height")
-        K = _seq(fs.getNode("camera_matrix"))
-        dist = _seq(fs.getNode("distortion_coefficients"))
-        if K is None or K.size != 9:
-            raise ValueError(f"{str(path)!r} has no 3x3 camera_matrix")
-        if width.empty() or height.empty():
-            raise ValueError(f"{str(path)!r} has no image_width/image_height (needed to check frames)")
-        dist = np.zeros(5) if dist is None else np.pad(dist, (0, max(0, 5 - dist.size)))[:5]
-        rms_node = fs.getNode("avg_reprojection_error")
-        views_node = fs.getNode("views")
-        K = K.reshape(3, 3)
-        intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(width.real()), int(height.real()))
-        return Calibration(
-            intrinsics,
-            BrownConrady(k1=dist[0], k2=dist[1], p1=dist[2], p2=dist[3], k3=dist[4]),
-            rms_node.real() if not rms_node.empty() else float("nan"),
-            int(views_node.real()) if not views_node.empty() else 0,
-        )
-    finally:
-        fs.release()
-
-
 # --------------------------------------------------------------------------------------------
 # Tracking on recordings
 # --------------------------------------------------------------------------------------------
@@ -715,11 +624,19 @@ TRACK_COLUMNS = ("frame", "target", "u_px", "v_px", "x_m", "y_m", "z_m", "distan
 """Columns of the per-frame CSV of :func:`track` (position in the camera optical frame)."""
 
 
+def _draw_axes(bgr, cam: Intrinsics, lens, rvec, tvec, length_m: float) -> None:
+    """Draw a pose's x, y, z axes (red, green, blue) through any lens, as ``cv2.drawFrameAxes`` does."""
+    R = cv2.Rodrigues(np.asarray(rvec, float).reshape(3))[0]
+    points = np.vstack((np.zeros(3), length_m * np.eye(3))) @ R.T + np.asarray(tvec, float).reshape(3)
+    uv = np.round(project(points, cam, lens)).astype(int)
+    for tip, colour in zip(uv[1:], ((0, 0, 255), (0, 255, 0), (255, 0, 0))):
+        cv2.line(bgr, tuple(int(v) for v in uv[0]), tuple(int(v) for v in tip), colour, 2)
+
+
 def _make_localiser(target: str, calibration: Calibration, dictionary: str, marker_length_m: float, radius_m: float):
     from . import detection
 
-    cam, lens = calibration.intrinsics, calibration.distortion
-    lens = None if lens.is_identity else lens
+    cam, lens = calibration.intrinsics, calibration.lens
     if target == "aruco":
         tracker = detection.ArucoTracker(cam, marker_length_m, dictionary=dictionary, distortion=lens)
 
@@ -730,8 +647,11 @@ def _make_localiser(target: str, calibration: Calibration, dictionary: str, mark
         def draw(bgr, found):
             for _, centre, _, pose in found:
                 cv2.polylines(bgr, [np.round(pose.corners_px).astype(np.int32)], True, (0, 255, 0), 2)
-                cv2.drawFrameAxes(bgr, cam.K, None if lens is None else lens.coefficients, pose.rvec,
-                                  pose.t_cam_marker_m, 0.5 * marker_length_m, 2)
+                if isinstance(lens, KannalaBrandt):  # cv2.drawFrameAxes knows pinhole lenses only
+                    _draw_axes(bgr, cam, lens, pose.rvec, pose.t_cam_marker_m, 0.5 * marker_length_m)
+                else:
+                    cv2.drawFrameAxes(bgr, cam.K, None if lens is None else lens.coefficients, pose.rvec,
+                                      pose.t_cam_marker_m, 0.5 * marker_length_m, 2)
         return run, draw
     if target == "sphere":
         detector = detection.SphereDetector(edge_mixing="linear", reject_border=True)

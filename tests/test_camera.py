@@ -234,3 +234,182 @@ def test_fisheye_errors_name_the_field_limit():
     assert KannalaBrandt(k1=-0.3).max_field_rad == pytest.approx(np.sqrt(1 / 0.9), rel=1e-12)  # 1 − 0.9θ² = 0
     with pytest.raises(TypeError, match="KannalaBrandt"):
         project([[0, 0, 1.0]], FISH_K, "fisheye")
+
+
+# --- Brown–Conrady undistortion over the whole monotonic disc ------------------------------------
+from gimbal_lab.camera import _distort_jacobian, _residual_floor  # noqa: E402
+
+TOL = 1e-12  # undistort's default stopping residual
+
+
+def _inverse_jacobian_norm(x, lens):
+    """‖J⁻¹‖₂ of the distortion map at each point of x (N, 2): how a residual becomes an error in x."""
+    dxx, dxy, dyx, dyy = _distort_jacobian(x[:, 0], x[:, 1], lens)
+    J = np.stack((np.column_stack((dxx, dxy)), np.column_stack((dyx, dyy))), axis=1)
+    return 1.0 / np.linalg.svd(J, compute_uv=False)[:, -1]
+
+
+def _valid_points(lens, fractions, angles, r_cap=2.0):
+    """Points at ``fractions`` of the monotonic disc's radius (capped at ``r_cap``) that the centre
+    reaches without crossing a fold: det J > 0 at 64 steps along the segment from the origin.
+    That is the region where undistort must find the preimage (tangential terms can fold the
+    map inside the disc, and beyond such a fold a point shares its image with one before it)."""
+    r = np.asarray(fractions) * min(lens.radial_limit(), r_cap)
+    x = np.column_stack((r * np.cos(angles), r * np.sin(angles)))
+    along = (x[:, None, :] * np.linspace(0.0, 1.0, 65)[None, 1:, None]).reshape(-1, 2)
+    dxx, dxy, dyx, dyy = _distort_jacobian(along[:, 0], along[:, 1], lens)
+    return x[np.all((dxx * dyy - dxy * dyx).reshape(len(x), 64) > 0, axis=1)]
+
+
+# subnormal coefficients are refused by BrownConrady itself (test_lens_coefficients_that_cannot_be_solved_are_named)
+coefficient = st.floats(-1.0, 1.0, allow_subnormal=False)
+tangential = st.floats(-0.05, 0.05, allow_subnormal=False)  # five times a strongly decentred real lens
+
+
+@settings(database=None, max_examples=400, derandomize=True, deadline=None)
+@given(
+    k1=st.one_of(st.floats(0.0, 1.0, allow_subnormal=False), coefficient),  # strong pincushion (k1 up to +1) and mixed signs
+    k2=coefficient, k3=coefficient, p1=tangential, p2=tangential,
+    polar=st.lists(st.tuples(st.floats(0.0, 0.999), st.floats(0.0, 2 * np.pi)), min_size=1, max_size=16),
+)
+def test_undistort_finds_every_point_of_the_monotonic_disc(k1, k2, k3, p1, p2, polar):
+    """Any lens, any point inside the disc where the radial map rises (and det J > 0): the round
+    trip distort → undistort comes back. Bound: undistort stops at residual ≤ tol once the
+    residual's rounding floor is below tol (checked); distort(x) itself carries up to that floor;
+    so |x_back − x| ≤ ‖J⁻¹‖ (tol + floor) to first order, and 2× that covers the second order."""
+    lens = BrownConrady(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
+    fractions, angles = np.array(polar).T
+    x = _valid_points(lens, fractions, angles)
+    if len(x) == 0:
+        return
+    assert _residual_floor(x[:, 0], x[:, 1], lens).max() < TOL  # the premise of the bound below
+    back = undistort(distort(x, lens), lens, tol=TOL)
+    bound = 2.0 * _inverse_jacobian_norm(x, lens) * 2.0 * TOL
+    assert np.all(np.hypot(*(back - x).T) <= bound)
+
+
+def test_undistort_of_a_strong_pincushion_lens_reaches_the_edge_of_the_disc_and_no_further():
+    """k1 = 1, k2 = −0.5: r + r³ − 0.5 r⁵ rises until 1 + 3s − 2.5s² = 0 (s = r²), i.e.
+    s = (3 + √19)/5; the disc's image reaches r(1 + s − s²/2) there (hand-derived). A point
+    just inside that image has a preimage (found, though it starts outside the disc); a point
+    just beyond has none in the disc (refused)."""
+    lens = BrownConrady(k1=1.0, k2=-0.5)
+    s = (3 + math.sqrt(19)) / 5
+    assert lens.radial_limit() == pytest.approx(math.sqrt(s), rel=1e-14)
+    edge = math.sqrt(s) * (1 + s - s * s / 2)  # 1.6848...
+    angles = np.linspace(0, 2 * np.pi, 17)
+    inside = 0.999 * edge * np.column_stack((np.cos(angles), np.sin(angles)))
+    back = undistort(inside, lens)
+    assert np.all(np.hypot(*back.T) < math.sqrt(s))
+    assert np.abs(distort(back, lens) - inside).max() <= TOL
+    with pytest.raises(UndistortionError, match=r"1 of 2 points .* monotonic disc"):
+        undistort([[0.5, 0.0], [0.0, 1.001 * edge]], lens)
+
+
+def test_undistort_agrees_with_opencv_where_opencv_converges():
+    """cv2.undistortPoints with a criteria (fixed-point iteration from x_d, EPS 1e-15) is the oracle on
+    random lenses, pincushion included, for every point where OpenCV itself converged to a
+    point of the disc (its answer re-projects, by cv2.projectPoints, within 1e-13). Agreement:
+    ‖J⁻¹‖ times the two answers' residuals and rounding floors, doubled."""
+    rng = np.random.default_rng(7)
+    compared = 0
+    for _ in range(200):
+        k1, k2, k3 = rng.uniform(-1, 1, 3)
+        lens = BrownConrady(k1, k2, *rng.uniform(-0.01, 0.01, 2), k3)
+        x = _valid_points(lens, rng.uniform(0, 0.999, 40), rng.uniform(0, 2 * np.pi, 40))
+        xd = distort(x, lens)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-15)
+        theirs = cv2.undistortPoints(xd[:, None, :], np.eye(3), lens.coefficients, None, None, None, criteria)[:, 0, :]
+        with np.errstate(invalid="ignore", over="ignore"):
+            again = cv2.projectPoints(np.column_stack((theirs, np.ones(len(theirs)))), np.zeros(3), np.zeros(3),
+                                      np.eye(3), lens.coefficients)[0][:, 0, :]
+            residual = np.hypot(*(again - xd).T)
+            converged = np.isfinite(residual) & (residual < 1e-13) & (np.hypot(*theirs.T) < lens.radial_limit())
+        if not converged.any():
+            continue
+        ours = undistort(xd[converged], lens, tol=TOL)
+        floors = _residual_floor(*x[converged].T, lens)
+        bound = 2.0 * _inverse_jacobian_norm(x[converged], lens) * (TOL + residual[converged] + 2 * floors)
+        assert np.all(np.hypot(*(ours - theirs[converged]).T) <= bound)
+        compared += int(converged.sum())
+    assert compared > 2000  # of about 8000 points: OpenCV converges on most, not on strong pincushion edges
+
+
+@pytest.mark.parametrize("hfov", [5e-324, 1e-310, 0.0, -0.1, math.inf, -math.inf, math.nan, math.pi, 4.0])
+def test_from_fov_refuses_fields_of_view_that_are_not_normal_floats_below_180_degrees(hfov):
+    with pytest.raises(ValueError, match="hfov_rad"):
+        Intrinsics.from_fov(640, 480, hfov)
+
+
+def test_from_fov_names_the_field_of_view_when_the_focal_length_overflows():
+    # normal, but (W/2)/tan(hfov/2) = 320/1.5e-308 exceeds the largest double
+    with pytest.raises(ValueError, match=r"hfov_rad = 3e-308 is too small"):
+        Intrinsics.from_fov(640, 480, 3e-308)
+    tiny = Intrinsics.from_fov(640, 480, 1e-300)  # still representable: f = 640/1e-300
+    assert tiny.fx == pytest.approx(6.4e302, rel=1e-12)
+
+
+@pytest.mark.parametrize("lens_type, name", [(BrownConrady, "k1"), (BrownConrady, "k3"), (KannalaBrandt, "k4")])
+def test_lens_coefficients_too_large_for_the_fold_radius_are_named(lens_type, name):
+    """Where the radial map folds is a root of 1 + 3 k1 s + 5 k2 s² + 7 k3 s³ (+ 9 k4 s⁴);
+    a coefficient whose multiple overflows a double is refused by name (not a LinAlgError)."""
+    with pytest.raises(ValueError, match=rf"{name} = -?1e\+308 is too large"):
+        lens_type(**{name: 1e308})
+    with pytest.raises(ValueError, match=rf"{name} = -1e\+308 is too large"):
+        lens_type(**{name: -1e308})
+
+
+@pytest.mark.parametrize(
+    "coefficients, s_fold",
+    [
+        # hand-derived smallest positive roots of the fold polynomial in s = r²
+        (dict(k2=-1.0, k3=1e-300), math.sqrt(1 / 5)),  # 1 − 5s² + 7e-300 s³: the huge root is not the first
+        (dict(k1=0.1, k3=5e-324), math.inf),  # every coefficient positive: no fold
+        (dict(k3=-5e-324), 1 / (7 * 5e-324) ** (1 / 3)),  # subnormal, yet the fold is far but finite
+        (dict(k1=-1e300), 1 / 3e300),  # 1 + 3 k1 s
+        (dict(k1=1e200, k3=-1e-200), None),  # 1 + 3e200 s − 7e-200 s³: s² ≈ 3e200/7e-200
+    ],
+)
+def test_fold_radius_is_found_for_coefficients_of_any_magnitude(coefficients, s_fold):
+    """np.roots (companion-matrix eigenvalues) lost the small root beside a huge one and raised
+    LinAlgError when the leading coefficient was subnormal; the fold radius is exact here."""
+    lens = BrownConrady(**coefficients)
+    if s_fold is None:
+        s_fold = math.sqrt(3e200) / math.sqrt(7e-200)  # the constant 1 shifts it by a relative 1e-400
+    assert lens.radial_limit() == pytest.approx(math.sqrt(s_fold), rel=1e-14)
+    fisheye = KannalaBrandt(**{("k4" if k == "k3" else k): v for k, v in coefficients.items()})
+    assert fisheye.max_field_rad <= math.pi
+
+
+def test_undistort_stops_at_the_rounding_floor_of_large_distorted_radii():
+    """k3 = 1e4: distorted radii reach 1e5, where |distort(x) − x_d| cannot be computed below
+    ~1e-11 (16 ε Σ|terms|); undistort must stop there instead of refusing for want of 1e-12."""
+    lens = BrownConrady(k3=1e4)  # rises everywhere: no fold
+    angles = np.linspace(0, 2 * np.pi, 50)
+    x = np.linspace(0.8, 1.5, 50)[:, None] * np.column_stack((np.cos(angles), np.sin(angles)))
+    floors = _residual_floor(x[:, 0], x[:, 1], lens)
+    assert floors.min() > TOL  # the case this test is about
+    back = undistort(distort(x, lens), lens, tol=TOL)
+    assert np.all(np.hypot(*(back - x).T) <= 2.0 * _inverse_jacobian_norm(x, lens) * 2.0 * floors)
+
+
+@pytest.mark.parametrize(
+    "lens, x",
+    [
+        (BrownConrady(k1=-0.9754748644582147, k2=0.6217928499304206, p1=-0.006420096369023222,
+                      p2=0.006236085819915679, k3=-0.13164080103821285), [-0.4440581810946724, -1.293961422184878]),
+        (BrownConrady(k1=0.7557191297283954, k2=0.9587667675982561, p1=0.04938974296169657,
+                      p2=0.00024715694852740777, k3=-0.17484508312920077), [-0.11767305140154294, 1.9933493277938041]),
+        (BrownConrady(k1=-0.09661484305711654, k2=0.7424838855014644, p1=-0.04441106023600049,
+                      p2=0.000986670050676354, k3=-0.329342459022548), [1.1390326988580532, -0.410005173851677]),
+    ],
+)
+def test_undistort_damps_newton_steps_that_would_overshoot(lens, x):
+    """Valid points (0.93–0.95 of the disc) whose distorted radius lies just beyond the radial
+    image of the disc, pushed out by the tangential terms: the radial start sits on the disc's
+    edge and full Newton steps from there leave it. Found with scripts/undistort_failure_rate.py's
+    sampling (|p| ≤ 0.05) against a variant without damping, which refused all three."""
+    x = np.array([x])
+    assert len(_valid_points(lens, [np.hypot(*x[0]) / min(lens.radial_limit(), 2.0)], [np.arctan2(x[0, 1], x[0, 0])])) == 1
+    back = undistort(distort(x, lens), lens, tol=TOL)
+    assert np.hypot(*(back - x)[0]) <= 2.0 * _inverse_jacobian_norm(x, lens)[0] * 2.0 * TOL

@@ -116,51 +116,6 @@ def test_charuco_board_is_found_with_its_own_corner_ids(planar_camera):
 
 
 # --------------------------------------------------------------------------------------------
-# calibration files
-# --------------------------------------------------------------------------------------------
-
-
-def test_calibration_file_round_trip(tmp_path):
-    original = rw.Calibration(CAM, LENS, rms_px=0.123, views=17)
-    loaded = rw.load_calibration(rw.save_calibration(tmp_path / "sub" / "cam.yaml", original))
-    assert loaded.intrinsics == CAM
-    np.testing.assert_allclose(loaded.distortion.coefficients, LENS.coefficients, rtol=0, atol=1e-15)
-    assert loaded.rms_px == pytest.approx(0.123) and loaded.views == 17
-
-
-def test_ros_camera_info_is_read(tmp_path):
-    path = tmp_path / "camera_info.yaml"
-    path.write_text(
-        "image_width: 640\nimage_height: 480\ncamera_name: webcam\n"
-        "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [600.5, 0, 321.0, 0, 601.5, 242.0, 0, 0, 1]\n"
-        "distortion_model: plumb_bob\n"
-        "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [-0.2, 0.05, 0.001, -0.002, 0.01]\n"
-    )
-    loaded = rw.load_calibration(path)
-    assert (loaded.intrinsics.fx, loaded.intrinsics.fy, loaded.intrinsics.cx, loaded.intrinsics.cy) == (600.5, 601.5, 321.0, 242.0)
-    assert loaded.intrinsics.size == (640, 480)
-    np.testing.assert_allclose(loaded.distortion.coefficients, [-0.2, 0.05, 0.001, -0.002, 0.01])
-    assert math.isnan(loaded.rms_px)
-
-
-def test_bad_calibration_files_name_the_problem(tmp_path):
-    with pytest.raises(FileNotFoundError, match="nope.yaml"):
-        rw.load_calibration(tmp_path / "nope.yaml")
-    no_matrix = tmp_path / "no_matrix.yaml"
-    no_matrix.write_text("image_width: 640\nimage_height: 480\n")
-    with pytest.raises(ValueError, match="camera_matrix"):
-        rw.load_calibration(no_matrix)
-    no_size = tmp_path / "no_size.yaml"
-    no_size.write_text("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [600, 0, 320, 0, 600, 240, 0, 0, 1]\n")
-    with pytest.raises(ValueError, match="image_width"):
-        rw.load_calibration(no_size)
-    garbage = tmp_path / "garbage.yaml"
-    garbage.write_text("::: [ not yaml {{\n")
-    with pytest.raises(ValueError, match="garbage.yaml"):
-        rw.load_calibration(garbage)
-
-
-# --------------------------------------------------------------------------------------------
 # tracking on recordings
 # --------------------------------------------------------------------------------------------
 
@@ -199,6 +154,32 @@ def test_track_without_the_lens_is_worse(tmp_path, marker_recording):
         errors[name] = np.linalg.norm(estimate - truth, axis=1).mean()
     # the marker stays within ~15° of the axis: measured 10.2 mm with the lens, 18.8 mm without
     assert errors["pinhole"] > 1.5 * errors["lens"]
+
+
+def test_track_takes_an_ideal_lens_as_none(tmp_path, marker_recording):
+    """A calibration file with an ideal lens is read as distortion=None; tracking (and drawing the
+    annotated video) then runs as with an all-zero Brown–Conrady lens."""
+    frames, _ = marker_recording
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, rgb in enumerate(frames[:3]):
+        cv2.imwrite(str(folder / f"{k:03d}.png"), rgb[..., ::-1])
+    runs = [rw.track(folder, tmp_path / name, "aruco", rw.Calibration(CAM, lens), marker_length_m=MARKER_M,
+                     progress=False) for name, lens in (("none", None), ("zeros", BrownConrady()))]
+    pd.testing.assert_frame_equal(runs[0].drop(columns="detect_ms"), runs[1].drop(columns="detect_ms"))
+    assert (tmp_path / "none" / "track.mp4").is_file()
+
+
+@pytest.mark.parametrize("lens", [None, LENS], ids=["pinhole", "brown-conrady"])
+def test_pose_axes_drawn_through_a_lens_match_opencv(lens):
+    """_draw_axes (used for fisheye lenses, which cv2.drawFrameAxes cannot draw) puts the same
+    pixels as cv2.drawFrameAxes where both apply: the oracle for its frame and colours."""
+    rvec, tvec = np.array([0.3, -0.2, 0.1]), np.array([0.05, -0.02, 0.8])
+    theirs, ours = np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640, 3), np.uint8)
+    cv2.drawFrameAxes(theirs, CAM.K, None if lens is None else lens.coefficients, rvec, tvec, 0.1, 2)
+    rw._draw_axes(ours, CAM, lens, rvec, tvec, 0.1)
+    assert np.count_nonzero(theirs.any(axis=2)) > 150  # three axes some 60 px long, 2 px wide
+    np.testing.assert_array_equal(ours, theirs)
 
 
 def test_frames_without_a_target_get_an_empty_row(tmp_path):
@@ -294,14 +275,6 @@ def test_command_line_errors_are_clear(tmp_path, monkeypatch, capsys, argv, mess
         cli.main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
-
-
-def test_the_sample_calibration_is_the_study_camera():
-    from pathlib import Path
-
-    sample = rw.load_calibration(Path(__file__).parents[1] / "data" / "calibration" / "sample_640x480.yml")
-    assert sample.intrinsics == CAM
-    np.testing.assert_array_equal(sample.distortion.coefficients, LENS.coefficients)
 
 
 def test_look_at_pose_puts_up_up_and_right_right():
