@@ -113,6 +113,10 @@ class GimbalMount:
         Source of the gyro noise (needed when the density is > 0).
     attitude_gain_per_s : float
         The stabilised mount's attitude-hold gain.
+    plants : sequence of 3 AxisPlant, optional
+        The (yaw, roll, pitch) axes (default: :meth:`AxisPlant.storm32` for each).
+    rate_gains : sequence of 3 PIDGains, optional
+        The rate loops' gains (default: Ziegler–Nichols from each plant, :class:`RateLoop`).
 
     Notes
     -----
@@ -124,7 +128,7 @@ class GimbalMount:
 
     def __init__(self, kinematics, body: BodyMotion, mount: str, dt_s: float, n_steps: int,
                  gyro_noise_rad_s_rthz: float = 0.0, rng: np.random.Generator | None = None,
-                 attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S):
+                 attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S, plants=None, rate_gains=None):
         if mount not in MOUNTS:
             raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
         if not isinstance(body, BodyMotion):
@@ -139,9 +143,15 @@ class GimbalMount:
         self.dt_s = float(dt_s)
         self.n_steps = int(n_steps)
         self.attitude_gain_per_s = float(attitude_gain_per_s)
-        self.plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
+        if plants is None:
+            plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
+        if rate_gains is None:
+            rate_gains = (None, None, None)
+        if len(plants) != 3 or len(rate_gains) != 3:
+            raise ValueError("plants and rate_gains must give the three axes (yaw, roll, pitch)")
+        self.plants = list(plants)
         self.axes = [GimbalAxis(p, self.dt_s) for p in self.plants]
-        self.rate_loops = [RateLoop(p, dt_s=self.dt_s) for p in self.plants]
+        self.rate_loops = [RateLoop(p, gains=g, dt_s=self.dt_s) for p, g in zip(self.plants, rate_gains)]
         self._friction = [p.damping_Nms_per_rad for p in self.plants]
         self.step_index = 0
         # the joint angles after every inner step: an exposure already run is rendered from them

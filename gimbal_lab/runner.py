@@ -88,7 +88,7 @@ class ResultsStore:
     Notes
     -----
     The entry of a config is ``runs/<key>.parquet`` and ``runs/<key>.json`` with
-    key = SHA-256 of the config's fields and :func:`source_hash`. The sidecar is written last, so
+    key = SHA-256 of the config's key (its fields and schema) and :func:`source_hash`. The sidecar is written last, so
     an entry without one is incomplete and simply recomputed.
     """
 
@@ -106,7 +106,7 @@ class ResultsStore:
 
     @staticmethod
     def key(config: TrackingConfig) -> str:
-        text = json.dumps({"config": config.to_dict(), "source": source_hash()}, sort_keys=True)
+        text = json.dumps({"config": config.key, "source": source_hash()}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
     def paths(self, config: TrackingConfig) -> tuple[Path, Path]:
@@ -400,7 +400,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
         unique[c] = store.load(c) if store is not None else None
     todo = [c for c, r in unique.items() if r is None]
     # Longest runs first keeps every worker busy to the end (ArUco frames cost more).
-    todo.sort(key=lambda c: (-c.n_frames, c.target != "aruco"))
+    todo.sort(key=lambda c: (-c.n_frames, c.target.kind != "aruco"))
 
     bar = None
     if progress and todo:
