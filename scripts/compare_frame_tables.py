@@ -46,11 +46,14 @@ STUDIES = ("paper", "paper-predictive", "paper-aruco-none", "moving-drone", "len
 # ----------------------------------------------------------------------------------------------
 def _cells(studies, seconds: float, match: str | None):
     """(study, config) of every cell's first replicate, shortened to ``seconds``, in grid order."""
-    import importlib.util
+    import dataclasses
 
+    from gimbal_lab.simulation import TrackingConfig
     from gimbal_lab.studies import lens_sweep, moving_drone, occlusion, paper
 
-    parts_api = importlib.util.find_spec("gimbal_lab.config") is not None
+    # the config's layout, from the revision's own TrackingConfig (a module's presence is no sign:
+    # an editable install may answer for modules the revision lacks)
+    parts_api = "camera" in {f.name for f in dataclasses.fields(TrackingConfig)}
 
     def period_s(c):
         return c.target.period_s if parts_api else c.period_s
