@@ -512,8 +512,8 @@ class Gimbal(_Part):
 
     Notes
     -----
-    The joints are not stopped at their limits in the axis dynamics: a run may turn a joint past
-    ``kinematics.joint_limits_rad``.
+    Each joint stops at ``kinematics.joint_limits_rad`` (:mod:`gimbal_lab.mount`, "Joint stops");
+    limits of ±inf leave a joint free (a slip-ring yaw).
     """
 
     kinematics: GimbalKinematics = field(default_factory=GimbalKinematics.default, compare=False)

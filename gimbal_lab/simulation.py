@@ -104,6 +104,8 @@ FRAME_COLUMNS = {
                                           "instant, world frame (NaN otherwise or before the track starts)",
     "filter_nees": "normalised error squared of that prediction against the truth (χ² with 3 degrees of freedom "
                    "for a consistent filter)",
+    "at_limit_yaw, at_limit_roll, at_limit_pitch": "the joint sits at its mechanical stop (gimbal.kinematics' "
+                                                   "joint_limits_rad) when the exposure starts (gimbal_lab.mount)",
 }
 
 
@@ -130,6 +132,7 @@ _COLUMNS = [
     "q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad", "w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s",
     "streak_px", "cam_turn_deg",
     "hidden", "visible_fraction", "partial", "filter_x_m", "filter_y_m", "filter_z_m", "filter_nees",
+    "at_limit_yaw", "at_limit_roll", "at_limit_pitch",
 ]
 
 
@@ -284,6 +287,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
         q0 = mount.q
         qd = mount.qd
         w0 = mount.smooth_axis_rates
+        at_limit = mount.at_limit
         if run_first:
             steer(k, q0)
             mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
@@ -329,7 +333,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
              *true_uv, math.hypot(true_uv[0] - K.cx, true_uv[1] - K.cy), *q, *qd,
              alt_ok, *p_alt, *p_cam_alt, d_alt, d_alt - d_true, abs(d_alt - d_true),
              *q0, *w0, streak_px, math.degrees(cam_turn_rad),
-             hidden, visible_fraction, partial, *p_filter, filter_nees)
+             hidden, visible_fraction, partial, *p_filter, filter_nees, *at_limit)
         )
         # the measurement of frame k reaches the outer loop latency_frames frames later
         pending.append(Measurement(k, t_mid, uv, q, d_est if detected else None, p_cam if detected else None,

@@ -309,3 +309,22 @@ def test_knowing_the_fisheye_makes_the_exact_cone_method_exact(fisheye_strategy_
     assert rel(fisheye_strategy_runs["undistort"]).median() < 0.01
     assert rel(fisheye_strategy_runs["ignore"]).min() > 0.05
     assert fisheye_strategy_runs["rectify"].config.label.endswith("/rectify")
+
+
+def test_a_run_keeps_its_joints_within_their_stops_and_says_when_they_sit_there(renderers):
+    """The paper's loop on the circle (which asks for about ±19° of pitch) with the pitch joint
+    limited to ±0.1 rad: the recorded joint angles never pass the stops (bit-exact on a still
+    body), a frame is flagged at the pitch stop exactly when its start angle sits on one, the stop
+    is reached on both sides, and yaw and roll stay free."""
+    from gimbal_lab.config import Gimbal
+
+    limits = ((-3.0, 3.0), (-0.7, 0.7), (-0.1, 0.1))
+    config = TrackingConfig(gimbal=Gimbal(kinematics=GimbalKinematics(joint_limits_rad=limits)),
+                            pointing=Pointing("paper"), revolutions=1.0)
+    f = simulate(config, renderer=renderers(config)).frames
+    for column in ("q_pitch_rad", "q0_pitch_rad"):
+        assert f[column].between(-0.1, 0.1).all()
+    at_stop = f["q0_pitch_rad"].abs() == 0.1
+    assert f["at_limit_pitch"].equals(at_stop)
+    assert (f.loc[at_stop, "q0_pitch_rad"] > 0).any() and (f.loc[at_stop, "q0_pitch_rad"] < 0).any()
+    assert not f["at_limit_yaw"].any() and not f["at_limit_roll"].any()
