@@ -166,6 +166,7 @@ def main(argv=None) -> int:
     parser.add_argument("--study", action="append", choices=STUDIES, help="only these grids (repeatable)")
     parser.add_argument("--match", help="only cells whose label contains this text")
     parser.add_argument("--json", help="write the per-cell report to this file")
+    parser.add_argument("--keep", help="copy both revisions' frame tables (and their index.json) into this folder")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--tree", help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
@@ -209,6 +210,11 @@ def main(argv=None) -> int:
         print(f"\n{n_equal} of {len(cells)} cells bit-equal ({args.seconds:g} s per run)")
         if extra[0] or extra[1]:
             print(f"columns only in b (not compared): {', '.join(extra[0]) or '-'}; only in a: {', '.join(extra[1]) or '-'}")
+        if args.keep:
+            import shutil
+
+            for name, out in (("a", out_a), ("b", out_b)):
+                shutil.copytree(out, Path(args.keep) / name, dirs_exist_ok=True)
         if args.json:
             Path(args.json).write_text(json.dumps({"rev_a": args.rev_a, "rev_b": args.rev_b, "seconds": args.seconds,
                                                    "cells": cells}, indent=1))
