@@ -1254,6 +1254,16 @@ def check_parts(config: TrackingConfig) -> None:
     Raises
     ------
     ValueError
+
+    Notes
+    -----
+    Where the flat config's cross-field rules went: those among one part's fields stay in that
+    part (a rolling shutter needs the fast blur, an exposure fits in a frame and needs a frame of
+    latency, a fisheye refuses the fast blur and bounds the field of view: :class:`Camera`; a
+    flight fixes the height: :class:`Platform`; the start phase lies within the period:
+    :class:`Target`); "a fixed passive mount cannot be active" is gone, as a :class:`Pointing` is
+    one kind; the rest are the rules above. The cone's size (camera field, platform height,
+    gimbal geometry) is derived, not checked (:attr:`TrackingConfig.path`).
     """
     camera, target = config.camera, config.target
     frames = config.revolutions * target.period_s * camera.fps

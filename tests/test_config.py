@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt
-from gimbal_lab.config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig
+from gimbal_lab.config import (
+    Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, check_parts,
+)
 from gimbal_lab.control import AxisPlant, PIDGains, RateLoop
 from gimbal_lab.kinematics import GimbalKinematics
 from gimbal_lab.platform import BodyMotion, HoverSway, WaypointFlight
@@ -109,6 +111,57 @@ def test_a_part_refuses_a_bad_field_naming_it(part, kwargs, message):
 def test_the_runs_own_fields_are_checked(kwargs, message):
     with pytest.raises((ValueError, TypeError), match=message):
         TrackingConfig(**kwargs)
+
+
+# ----------------------------------------------------------------------------------------------
+# the rules that tie two parts: one function, both parts in every message
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        # the latency must leave a frame to steer: 120 frames in the default run
+        (dict(camera=Camera(latency_frames=120)), r"camera.latency_frames=120 .*revolutions × target.period_s × camera.fps"),
+        (dict(revolutions=0.001), r"at least one frame: revolutions × target.period_s × camera.fps"),
+        (dict(revolutions=1e5, camera=Camera(fps=1000.0)), r"revolutions × target.period_s × camera.fps must be <="),
+        (dict(camera=Camera(fps=2000.0)), "gimbal.inner_rate_hz=1000 must be >= camera.fps=2000"),
+        (dict(estimator=Estimator(lens_strategy="undistort")),
+         "estimator.lens_strategy 'undistort' needs a lens; camera.lens is 'none'"),
+        (dict(estimator=Estimator(lens_strategy="rectify"), camera=Camera(lens=BrownConrady())),
+         "estimator.lens_strategy 'rectify' needs a lens; camera.lens is BrownConrady"),
+        (dict(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+              camera=Camera(exposure_s=1 / 60, blur="fast")), "target.occluders need camera.blur 'subframes'"),
+        (dict(pointing=Pointing("predictive"), platform=Platform(motion="hover")),
+         "pointing 'predictive' assumes a still platform; platform.motion is 'hover'"),
+        (dict(pointing=Pointing("filter"), platform=Platform(motion="flight")),
+         "pointing 'filter' assumes a still platform; platform.motion is 'flight'"),
+    ],
+)
+def test_a_rule_tying_two_parts_names_both(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        TrackingConfig(**kwargs)
+
+
+def test_the_rules_tying_parts_accept_what_they_allow():
+    """The edge each rule draws: the last frame a latency may take, an inner rate equal to the frame
+    rate, a known lens, occluders with sub-frame blur, the paper's loop on a moving body."""
+    TrackingConfig(camera=Camera(latency_frames=119))
+    TrackingConfig(camera=Camera(fps=1000.0), revolutions=0.01)
+    TrackingConfig(estimator=Estimator(lens_strategy="undistort"), camera=Camera(lens="default"))
+    TrackingConfig(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+                   camera=Camera(exposure_s=1 / 60, n_subframes=4))
+    TrackingConfig(pointing=Pointing("paper"), platform=Platform(motion="flight"))
+    check_parts(TrackingConfig())  # callable on its own, as the config's constructor calls it
+
+
+def test_the_old_passive_mount_rule_cannot_be_broken():
+    """The flat config refused passive_mount="fixed" with mode="active"; a pointing is one kind, so
+    "fixed and active" cannot be written."""
+    kinds = {kind: (Pointing(kind).mount, Pointing(kind).mode) for kind in
+             ("fixed", "stabilised", "paper", "predictive", "filter")}
+    assert kinds == {"fixed": ("fixed", "passive"), "stabilised": ("stabilised", "passive"),
+                     "paper": ("active", "active"), "predictive": ("active", "active"),
+                     "filter": ("active", "active")}
+    assert Pointing("filter").filter == "imm" and Pointing("stabilised").filter is None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -303,15 +356,18 @@ _OLD_FLAT = {
 _OLD_KEY = "c8f986226a0bc786"
 
 
-def test_an_old_flat_sidecar_is_not_a_config_and_its_key_is_never_served():
+def test_an_old_flat_sidecar_is_not_a_config_and_its_key_is_never_served(monkeypatch):
+    import gimbal_lab.config as config_module
+
     assert hashlib.sha256(json.dumps(_OLD_FLAT, sort_keys=True).encode()).hexdigest()[:16] == _OLD_KEY
     with pytest.raises(ValueError, match="unknown TrackingConfig key.*distortion.*mode"):
         TrackingConfig.from_dict(_OLD_FLAT)
     same_run = TrackingConfig(camera=Camera(lens="default"), pointing=Pointing("paper"))
     assert same_run.key != _OLD_KEY
-    # the schema enters the key: the same fields under another schema hash differently
-    text = json.dumps({"schema": "gimbal-lab/tracking-config/1", "config": same_run.to_dict()}, sort_keys=True)
-    assert hashlib.sha256(text.encode()).hexdigest()[:16] != same_run.key
+    # the schema enters the key: the same fields under another schema version hash differently
+    key = same_run.key
+    monkeypatch.setattr(config_module, "SCHEMA", "gimbal-lab/tracking-config/3")
+    assert same_run.key != key
 
 
 def test_equal_configs_are_equal_by_value_and_distinct_ones_are_not():
