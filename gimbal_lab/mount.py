@@ -20,7 +20,9 @@ at the inner rate; this module adds what a moving base brings:
   stop; it leaves as soon as the motor pulls it back. While a joint sits at its stop and its rate
   loop's error points further into it, the loop's integral is held (conditional integration), so
   it does not wind up against the stop and the joint answers a reversed reference at once.
-  :attr:`GimbalMount.at_limit` says which joints sit at a stop.
+  :attr:`GimbalMount.at_limit` says which joints sit at a stop. (The few milliseconds of a
+  rolling-shutter window that reach past the steps already run are extrapolated from the axes'
+  mean rates, :func:`exposure_pose_fn`, without the stops.)
 * **Gyro.** The camera-platform gyro measures w (body plus joint rates) through the axis's own
   160 Hz low-pass and delay, plus white noise of density ``gyro_noise_rad_s_rthz`` through the
   same low-pass (docs/design.md: 0.005 °/s/√Hz).
