@@ -27,9 +27,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from gimbal_lab.runner import run
 from gimbal_lab.studies.paper import PaperStudy, grid
-from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.config import Camera, Pointing, Target, TrackingConfig
 from gimbal_lab.scene import add_sensor_noise
-from gimbal_lab.simulation import TrackingConfig, _Estimator, make_renderer, simulate, world_T_base
+from gimbal_lab.simulation import make_renderer, simulate, world_T_base
 from gimbal_lab.trajectories import target_pose
 
 
@@ -38,7 +38,8 @@ def frame_costs(target: str, mode: str, n_frames: int) -> dict[str, float]:
     same poses and frames a render alone ("render"), sensor noise alone ("noise") and the
     detector with its localisers alone ("detect"). What the closed loop spends beyond the three
     ("loop": the 1 kHz inner loop, kinematics, truth and the table row) is the rest."""
-    config = TrackingConfig(target=target, distortion="default", mode=mode, revolutions=n_frames / 60, noise_std=2.0)
+    config = TrackingConfig(camera=Camera(lens="default", noise_std=2.0), target=Target(kind=target),
+                            pointing=Pointing("paper" if mode == "active" else "stabilised"), revolutions=n_frames / 60)
     renderer = make_renderer(config)
     try:
         simulate(config.replace(revolutions=0.1), renderer=renderer)  # warm-up: shaders, caches
@@ -46,7 +47,7 @@ def frame_costs(target: str, mode: str, n_frames: int) -> dict[str, float]:
         result = simulate(config, renderer=renderer)
         n = len(result.frames)
         closed = (time.perf_counter() - t0) / n
-        kin = GimbalKinematics.default()
+        kin = config.gimbal.kinematics
         T_world_base = world_T_base(kin)
         f = result.frames
         poses = [
@@ -60,9 +61,9 @@ def frame_costs(target: str, mode: str, n_frames: int) -> dict[str, float]:
         renderer.close()
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()
-    noisy = [add_sensor_noise(image, config.noise_std, rng) for image in images]
+    noisy = [add_sensor_noise(image, config.camera.noise_std, rng) for image in images]
     noise = (time.perf_counter() - t0) / n
-    estimate = _Estimator(config)
+    estimate = config.estimator.build(config.camera, config.target)
     t0 = time.perf_counter()
     for image in noisy:
         estimate(image)

@@ -14,6 +14,7 @@ evaluation    static accuracy sweeps of the detectors
 control       axis plant, PID, Ziegler-Nichols, inner and outer loops
 tracking      line-of-sight filter and the predictive outer loop
 trajectories  the study's target motions
+config        the run's config: camera, gimbal, platform, target, pointing, estimator parts
 simulation    the closed tracking loop
 runner        executors (local spawn pool, Dask), the results store, progress
 stats         replicate statistics and three-way verdicts

@@ -335,6 +335,13 @@ class GimbalAxis:
         self.measured_rate_rad_s = a
         return a
 
+    def stop(self, angle_rad: float, rate_rad_s: float) -> None:
+        """The axis meets a mechanical stop: its angle becomes ``angle_rad`` and its rate
+        ``rate_rad_s`` (the stop's own: zero on a still base), an inelastic contact; the motor's
+        torque, the gyro's filter and its delay line keep their states and follow from there."""
+        self.angle_rad = angle_rad
+        self.rate_rad_s = rate_rad_s
+
 
 # ----------------------------------------------------------------------------------------------
 # ultimate gain
@@ -669,8 +676,12 @@ class PID:
         self.output = 0.0
         self.saturated = False
 
-    def update(self, setpoint: float, measurement: float) -> float:
-        """One controller step: return the (limited) output for this sample."""
+    def update(self, setpoint: float, measurement: float, hold_integral: bool = False) -> float:
+        """One controller step: return the (limited) output for this sample.
+
+        ``hold_integral`` leaves the integral as it is for this sample (conditional integration
+        decided by the caller, e.g. while the plant sits against a mechanical stop).
+        """
         g = self.gains
         e = setpoint - measurement
         y_prev = self._y_prev
@@ -686,6 +697,8 @@ class PID:
         if self.anti_windup == "back_calculation":
             step += self._bc * (u - v)
         elif self.anti_windup == "clamp" and self.saturated and (v - u) * e > 0.0:
+            step = 0.0
+        if hold_integral:
             step = 0.0
         self.integral += step
         self.output = u
@@ -818,9 +831,9 @@ class RateLoop:
         self.gains = gains
         self.dt_s = self.pid.dt_s
 
-    def update(self, rate_ref_rad_s: float, rate_meas_rad_s: float) -> float:
-        """Return the torque command, N·m, for this 1-step sample."""
-        return self.pid.update(rate_ref_rad_s, rate_meas_rad_s)
+    def update(self, rate_ref_rad_s: float, rate_meas_rad_s: float, hold_integral: bool = False) -> float:
+        """Return the torque command, N·m, for this 1-step sample (``hold_integral``: see :meth:`PID.update`)."""
+        return self.pid.update(rate_ref_rad_s, rate_meas_rad_s, hold_integral)
 
     def reset(self) -> None:
         """Reset the PID state."""

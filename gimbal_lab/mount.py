@@ -14,6 +14,15 @@ at the inner rate; this module adds what a moving base brings:
   ``damping_Nms_per_rad``) drags each axis with the body, the disturbance torque c·b_i
   (:meth:`gimbal_lab.control.AxisPlant.base_rate_torque_Nm`). Coupling of inertia between axes is
   left out (the axes are orthogonal at home and stay within a few degrees of it here).
+* **Joint stops.** Each joint turns within the kinematics' ``joint_limits_rad``. A joint that
+  reaches a limit stops there, an inelastic contact: its angle is the limit and its rate relative
+  to the base zero (the axis turns with the body), for as long as its motor pushes it into the
+  stop; it leaves as soon as the motor pulls it back. While a joint sits at its stop and its rate
+  loop's error points further into it, the loop's integral is held (conditional integration), so
+  it does not wind up against the stop and the joint answers a reversed reference at once.
+  :attr:`GimbalMount.at_limit` says which joints sit at a stop. (The few milliseconds of a
+  rolling-shutter window that reach past the steps already run are extrapolated from the axes'
+  mean rates, :func:`exposure_pose_fn`, without the stops.)
 * **Gyro.** The camera-platform gyro measures w (body plus joint rates) through the axis's own
   160 Hz low-pass and delay, plus white noise of density ``gyro_noise_rad_s_rthz`` through the
   same low-pass (docs/design.md: 0.005 °/s/√Hz).
@@ -113,6 +122,10 @@ class GimbalMount:
         Source of the gyro noise (needed when the density is > 0).
     attitude_gain_per_s : float
         The stabilised mount's attitude-hold gain.
+    plants : sequence of 3 AxisPlant, optional
+        The (yaw, roll, pitch) axes (default: :meth:`AxisPlant.storm32` for each).
+    rate_gains : sequence of 3 PIDGains, optional
+        The rate loops' gains (default: Ziegler–Nichols from each plant, :class:`RateLoop`).
 
     Notes
     -----
@@ -124,7 +137,7 @@ class GimbalMount:
 
     def __init__(self, kinematics, body: BodyMotion, mount: str, dt_s: float, n_steps: int,
                  gyro_noise_rad_s_rthz: float = 0.0, rng: np.random.Generator | None = None,
-                 attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S):
+                 attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S, plants=None, rate_gains=None):
         if mount not in MOUNTS:
             raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
         if not isinstance(body, BodyMotion):
@@ -139,10 +152,19 @@ class GimbalMount:
         self.dt_s = float(dt_s)
         self.n_steps = int(n_steps)
         self.attitude_gain_per_s = float(attitude_gain_per_s)
-        self.plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
+        if plants is None:
+            plants = [AxisPlant.storm32(axis) for axis in ("yaw", "roll", "pitch")]
+        if rate_gains is None:
+            rate_gains = (None, None, None)
+        if len(plants) != 3 or len(rate_gains) != 3:
+            raise ValueError("plants and rate_gains must give the three axes (yaw, roll, pitch)")
+        self.plants = list(plants)
         self.axes = [GimbalAxis(p, self.dt_s) for p in self.plants]
-        self.rate_loops = [RateLoop(p, dt_s=self.dt_s) for p in self.plants]
+        self.rate_loops = [RateLoop(p, gains=g, dt_s=self.dt_s) for p, g in zip(self.plants, rate_gains)]
         self._friction = [p.damping_Nms_per_rad for p in self.plants]
+        self._lo = tuple(float(lo) for lo, _ in kinematics.joint_limits_rad)
+        self._hi = tuple(float(hi) for _, hi in kinematics.joint_limits_rad)
+        self._stop = [0, 0, 0]  # per joint: +1 at its upper stop, -1 at its lower stop, 0 free
         self.step_index = 0
         # the joint angles after every inner step: an exposure already run is rendered from them
         self._q_path = np.zeros((self.n_steps + 1, 3))
@@ -192,6 +214,11 @@ class GimbalMount:
             return np.zeros(3)
         J = self._R_body_base @ self.kinematics.angular_jacobian(q, frame="base", check_limits=False)
         return np.linalg.solve(J, self._w_body[k])
+
+    @property
+    def at_limit(self) -> tuple[bool, bool, bool]:
+        """Whether each joint (yaw, roll, pitch) sits at a mechanical stop now."""
+        return tuple(s != 0 for s in self._stop)
 
     @property
     def qd(self) -> np.ndarray:
@@ -249,6 +276,7 @@ class GimbalMount:
         noise, dt = self._noise, self.dt_s
         stabilised = self.mount == "stabilised"
         k_att = self.attitude_gain_per_s
+        lo, hi, stop = self._lo, self._hi, self._stop
         ref = (0.0, 0.0, 0.0) if rate_ref is None else tuple(float(r) for r in rate_ref)
         for _ in range(n):
             k = self.step_index
@@ -267,12 +295,24 @@ class GimbalMount:
                     estimate[i] += measured * dt
                 else:
                     r = ref[i]
-                torque = loops[i].update(r, measured)
+                # against a stop, an error pushing further into it is not integrated
+                torque = loops[i].update(r, measured, stop[i] != 0 and (r - measured) * stop[i] > 0.0)
                 if b is None:
                     axis.step(torque)
+                    b_i = 0.0
                 else:
-                    axis.step(torque, friction[i] * b[i])
-                    base[i] += b[i] * dt
+                    b_i = b[i]
+                    axis.step(torque, friction[i] * b_i)
+                    base[i] += b_i * dt
+                q_i = axis.angle_rad - base[i]
+                if q_i > hi[i]:
+                    axis.stop(hi[i] + base[i], b_i)  # at the stop the joint turns with the base
+                    stop[i] = 1
+                elif q_i < lo[i]:
+                    axis.stop(lo[i] + base[i], b_i)
+                    stop[i] = -1
+                else:
+                    stop[i] = 0
             self.step_index = k + 1
             self._history.append((axes[0].angle_rad, axes[1].angle_rad, axes[2].angle_rad))
             self._q_path[k + 1] = (axes[0].angle_rad - base[0], axes[1].angle_rad - base[1],

@@ -173,14 +173,15 @@ class SourceMismatch(SweepFailed):
 # ----------------------------------------------------------------------------------------------
 def _frame_clock(config: TrackingConfig) -> tuple[int, float]:
     """The number of frames a run of ``config`` holds and its frame rate, Hz: the store's only use
-    of the config's fields (its key comes from ``to_dict``)."""
-    return config.n_frames, config.fps
+    of the config's fields (its key comes from ``config.key``)."""
+    return config.n_frames, config.camera.fps
 
 
 #: Columns of the frame table that hold integers and booleans (``simulation.closed_loop`` writes
 #: Python ints and bools there); every other column of ``simulation._COLUMNS`` holds float64.
 _INTEGER_COLUMNS = frozenset({"frame", "revolution"})
-_BOOLEAN_COLUMNS = frozenset({"detected", "alt_detected", "hidden", "partial"})
+_BOOLEAN_COLUMNS = frozenset({"detected", "alt_detected", "hidden", "partial", "at_limit_yaw", "at_limit_roll",
+                               "at_limit_pitch"})
 
 
 def frame_schema() -> dict[str, np.dtype]:
@@ -405,7 +406,7 @@ class ResultsStore:
     Notes
     -----
     **Entries.** The entry of a config is ``runs/<key>.parquet`` and ``runs/<key>.json`` with
-    key = SHA-256 of the config's fields and :func:`source_hash`. The table is written first, the
+    key = SHA-256 of the config's key (its nested parts and schema version) and :func:`source_hash`. The table is written first, the
     sidecar last, so an entry without a sidecar is incomplete and simply recomputed.
 
     **What is served.** :meth:`load` reads the sidecar (this format, this source hash, this
@@ -534,7 +535,7 @@ class ResultsStore:
     # -- keys and paths -------------------------------------------------------------------------
     @staticmethod
     def key(config: TrackingConfig) -> str:
-        text = json.dumps({"config": config.to_dict(), "source": source_hash()}, sort_keys=True)
+        text = json.dumps({"config": config.key, "source": source_hash()}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
     def paths(self, config: TrackingConfig) -> tuple[Path, Path]:
@@ -1031,7 +1032,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
         unique[c] = store.load(c) if store is not None else None
     todo = [c for c, r in unique.items() if r is None]
     # Longest runs first keeps every worker busy to the end (ArUco frames cost more).
-    todo.sort(key=lambda c: (-c.n_frames, c.target != "aruco"))
+    todo.sort(key=lambda c: (-c.n_frames, c.target.kind != "aruco"))
 
     bar = None
     done = 0

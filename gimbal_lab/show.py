@@ -62,16 +62,13 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
 
     Notes
     -----
-    Frames are bit-identical to the run's. A sharp frame (``exposure_s == 0``) is rendered by
+    Frames are bit-identical to the run's. A sharp frame (``camera.exposure_s == 0``) is rendered by
     :func:`gimbal_lab.simulation.render_frame` from the joint angles and rates the run recorded at
     its start (``q0_*``, ``w_*``) and the config's body motion. A blurred frame integrates the
     camera's motion through the exposure, which the table does not hold: the closed loop
     (:func:`gimbal_lab.simulation.closed_loop`) runs again up to ``stop``, and each frame is
     checked against the table (a run stored by another version of the package raises).
     """
-    from .kinematics import GimbalKinematics
-    from .scene import add_sensor_noise
-
     result = _check_result(result)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ValueError(f"every must be an integer >= 1, got {every!r}")
@@ -85,27 +82,27 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
     if own:
         renderer = make_renderer(config)
     try:
-        if config.exposure_s > 0:
+        camera = config.camera
+        if camera.exposure_s > 0:
             yield from _rerun(result, renderer, every, start, stop)
             return
-        kin = GimbalKinematics.default()
+        kin = config.gimbal.kinematics
         body = config.body
-        window_s = config.exposure_s + config.readout_s
         rng = np.random.default_rng(config.seed)
         q0_cols = ["q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad"]
         w_cols = ["w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s"]
-        blank = np.zeros((config.height, config.width, 3), np.uint8)
+        blank = np.zeros((camera.height, camera.width, 3), np.uint8)
         for i, row in enumerate(result.frames.itertuples(index=False)):
             if i >= stop:
                 break
             if i < start or (i - start) % every:
-                add_sensor_noise(blank, config.noise_std, rng)  # keeps the noise stream in step with the run
+                camera.add_noise(blank, rng)  # keeps the noise stream in step with the run
                 continue
             q0 = np.array([getattr(row, c) for c in q0_cols])
             w = np.array([getattr(row, c) for c in w_cols])
-            camera_fn = exposure_pose_fn(kin, body, config.mount, q0, w, row.t_s, row.t_s + window_s)
+            camera_fn = exposure_pose_fn(kin, body, config.pointing.mount, q0, w, row.t_s, row.t_s + camera.window_s)
             image = render_frame(config, renderer, camera_fn, row.t_s)[0]
-            yield row, add_sensor_noise(image, config.noise_std, rng)
+            yield row, camera.add_noise(image, rng)
     finally:
         if own:
             renderer.close()
@@ -138,7 +135,7 @@ def annotate(image: np.ndarray, row, config: TrackingConfig, trace=(), title: st
     true centre's recent pixel positions, oldest first.
     """
     out = np.ascontiguousarray(image.copy())
-    K = config.intrinsics
+    K = config.camera.intrinsics
     h, w = out.shape[:2]
     cv2.drawMarker(out, (int(round(K.cx)), int(round(K.cy))), _GREY, cv2.MARKER_CROSS, 24, 1, cv2.LINE_AA)
     pts = [p for p in (_point(u, v) for u, v in trace) if p is not None]
@@ -151,7 +148,7 @@ def annotate(image: np.ndarray, row, config: TrackingConfig, trace=(), title: st
     if found is not None:
         cv2.drawMarker(out, found, _MAGENTA, cv2.MARKER_TILTED_CROSS, 14, 2, cv2.LINE_AA)
     error = f"|error| {1000 * row.abs_error_m:5.1f} mm" if row.detected else "not detected"
-    lines = [title or f"{config.mode} {config.target}",
+    lines = [title or f"{config.pointing.mode} {config.target.kind}",
              f"t {row.t_mid_s:5.2f} s  offset {row.true_offset_px:5.1f} px  {error}"]
     scale = max(0.4, h / 960)
     y = int(22 * scale / 0.5)
@@ -173,19 +170,23 @@ def _annotated(result, renderer, every, title):
 def side_by_side(passive: TrackingResult, active: TrackingResult, every: int = 1):
     """Yield frames with the passive run on the left and the active run on the right, same instants.
 
-    Both runs must share the target, lens, frame rate and run length (they are the two modes of
-    one cell); one renderer serves both.
+    Both runs must share the target, camera, lens, frame rate and run length (they are the two
+    pointings of one cell); one renderer serves both.
     """
     for r in (passive, active):
         _check_result(r)
     a, b = passive.config, active.config
-    same = ("target", "width", "height", "fps", "n_frames", "distortion", "trajectory", "period_s")
-    differ = [f for f in same if getattr(a, f) != getattr(b, f)]
+    same = {"target.kind": lambda c: c.target.kind, "target.trajectory": lambda c: c.target.trajectory,
+            "target.period_s": lambda c: c.target.period_s, "camera.width": lambda c: c.camera.width,
+            "camera.height": lambda c: c.camera.height, "camera.fps": lambda c: c.camera.fps,
+            "camera.lens": lambda c: c.camera.lens, "n_frames": lambda c: c.n_frames}
+    differ = [name for name, get in same.items() if get(a) != get(b)]
     if differ:
-        raise ValueError(f"the two runs must differ only in mode; they differ in {', '.join(differ)}")
+        raise ValueError(f"the two runs must differ only in pointing; they differ in {', '.join(differ)}")
     renderer = make_renderer(a)
     try:
-        name = lambda c: f"{c.mode.upper()}  {c.target}, {c.distortion_label}, {c.trajectory}, seed {c.seed}"
+        name = lambda c: (f"{c.pointing.mode.upper()}  {c.target.kind}, {c.camera.lens_label}, {c.target.trajectory}, "
+                          f"seed {c.seed}")
         left = _annotated(passive, renderer, every, name(a))
         right = _annotated(active, renderer, every, name(b))
         for l_img, r_img in zip(left, right):
@@ -253,19 +254,19 @@ def show(target: str = "sphere", distortion: str = "default", trajectory: str = 
     if seed not in study.seeds:
         raise ValueError(f"seed must be one of the study's replicates {study.seeds[0]}..{study.seeds[-1]}, got {seed!r}")
     wanted = {"distortion": {"none": "none", "default": "default"}.get(distortion), "trajectory": trajectory}
-    cells = [c for c in grid(study, targets=(target,)) if c.seed == seed and c.trajectory == trajectory
-             and c.distortion == wanted["distortion"]]
+    cells = [c for c in grid(study, targets=(target,)) if c.seed == seed and c.target.trajectory == trajectory
+             and c.camera.lens == wanted["distortion"]]
     if len(cells) != 2:
         raise ValueError(f"no study cell for distortion={distortion!r}, trajectory={trajectory!r} "
                          "(distortion: none or default; trajectory: circular or diagonal)")
-    passive, active = sorted(cells, key=lambda c: c.mode != "passive")
+    passive, active = sorted(cells, key=lambda c: c.pointing.active)
     r_passive, r_active = run([passive, active], store=store, jobs=jobs, progress=progress, desc="runs to show")
     frames = side_by_side(r_passive, r_active, every=every)
     if progress:
         from tqdm.auto import tqdm
 
         frames = tqdm(frames, total=math.ceil(passive.n_frames / every), desc="clip", unit="frame")
-    return write_clip(out, frames, fps=passive.fps / every)
+    return write_clip(out, frames, fps=passive.camera.fps / every)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -426,3 +426,16 @@ def test_simulate_pointing_delays_the_pixel_by_the_latency():
     late = simulate_pointing(ImageLoop(K), _camera_pose, lambda t: target, 0.2, latency_frames=1)
     assert np.all(late.qdot_rad_s[0] == 0) and np.any(fresh.qdot_rad_s[0] != 0)
     assert late.qdot_rad_s[1] == pytest.approx(fresh.qdot_rad_s[0], abs=1e-12)  # same pixel, one frame later
+
+
+def test_pid_holds_its_integral_when_told_and_only_then():
+    """hold_integral freezes the integral for that sample; the output is the same law either way
+    (kp·e + integral − derivative), and the next free sample integrates again (ki·e·dt)."""
+    pid = PID(PIDGains(2.0, 3.0, 0.0), dt_s=0.01)
+    pid.update(1.0, 0.0)
+    before = pid.integral
+    assert before == pytest.approx(3.0 * 1.0 * 0.01, rel=1e-15)
+    u = pid.update(1.0, 0.5, hold_integral=True)
+    assert pid.integral == before and u == pytest.approx(2.0 * 0.5 + before, rel=1e-15)
+    pid.update(1.0, 0.5)
+    assert pid.integral == pytest.approx(before + 3.0 * 0.5 * 0.01, rel=1e-15)

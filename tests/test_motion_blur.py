@@ -341,14 +341,15 @@ def test_frames_through_the_vectorised_pose_fn_equal_those_through_scalar_calls(
     truth-instant state exactly, the streak and turn within 1e-9, the same instants sampled."""
     from gimbal_lab.kinematics import GimbalKinematics
     from gimbal_lab.mount import exposure_pose_fn
+    from gimbal_lab.config import Camera, Platform, Pointing
     from gimbal_lab.simulation import TrackingConfig, image_motion, render_frame
 
-    config = TrackingConfig(target="sphere", motion="vibration", mode="active", exposure_s=EXPOSURE_S,
-                            readout_s=READOUT_S, blur="fast")
-    assert config.intrinsics == CAM and config.lens is None
+    config = TrackingConfig(camera=Camera(exposure_s=EXPOSURE_S, readout_s=READOUT_S, blur="fast"),
+                            platform=Platform(motion="vibration"), pointing=Pointing("paper"))
+    assert config.camera.intrinsics == CAM and config.camera.lens_model is None
     q0, w = np.array([0.02, -0.01, 0.03]), np.array([0.3, -0.1, 0.2])
     for t_s in (0.5, 0.9):
-        camera_fn = exposure_pose_fn(GimbalKinematics.default(), config.body, config.mount, q0, w, t_s,
+        camera_fn = exposure_pose_fn(GimbalKinematics.default(), config.body, config.pointing.mount, q0, w, t_s,
                                      t_s + EXPOSURE_S + READOUT_S)
         vectorised = render_frame(config, sphere_scene, camera_fn, t_s)
         stats = sphere_scene._motion_stats
@@ -397,9 +398,10 @@ def test_image_motion_turn_is_the_joint_rotation_by_hand():
     exposure (a rotation about one axis), through ``many`` and through scalar calls (1e-9 rad)."""
     from gimbal_lab.kinematics import GimbalKinematics
     from gimbal_lab.mount import exposure_pose_fn
+    from gimbal_lab.config import Camera, Pointing
     from gimbal_lab.simulation import TrackingConfig, image_motion
 
-    config = TrackingConfig(target="sphere", mode="active", exposure_s=EXPOSURE_S, blur="fast")
+    config = TrackingConfig(camera=Camera(exposure_s=EXPOSURE_S, blur="fast"), pointing=Pointing("paper"))
     camera_fn = exposure_pose_fn(GimbalKinematics.default(), BodyMotion.static(), "active", np.zeros(3),
                                  [0.0, 0.0, 0.5], 1.0, 1.0 + EXPOSURE_S)
     for fn in (camera_fn, lambda t: camera_fn(t)):

@@ -256,3 +256,102 @@ def test_exposure_pose_many_is_the_scalar_pose_at_each_instant(mount, motion, mo
         assert np.all(q == 0)
     else:  # q = q0 + w·(t − t0) − ∫b: at t0 the state itself
         np.testing.assert_allclose(camera_fn(t0)[0], q0, rtol=0, atol=1e-15)
+
+
+# ----------------------------------------------------------------------------------------------
+# joint stops
+# ----------------------------------------------------------------------------------------------
+def _rate_to_axis_mean_delay_s(plant, gains) -> float:
+    """Mean delay (−T'(0)/T(0)) from a rate reference to the axis's true rate, from
+    python-control's continuous closed rate loop: the loop to the gyro's delayed reading, less
+    the gyro's lag τ_g and the delay L behind the axis (mean delays of a cascade add)."""
+    from gimbal_lab.control import closed_loop
+
+    T = closed_loop(plant, gains)[0]
+    A, B, C, D = (np.asarray(x) for x in (T.A, T.B, T.C, T.D))
+    dc = (D - C @ np.linalg.solve(A, B)).item()
+    tau = (C @ np.linalg.solve(A, np.linalg.solve(A, B))).item() / dc  # −T'(0)/T(0), T'(0) = −C A⁻² B
+    return tau - plant.gyro_tau_s - plant.delay_s
+
+
+def test_a_joint_driven_into_its_stop_reaches_it_on_time_and_stays():
+    """Still body, a constant pitch-rate reference r = 0.5 rad/s from q0 = 0: once the rate loop
+    has settled the joint follows r·(t − τ), τ the loop's mean delay (python-control), so it
+    reaches the default +45° stop at t = (limit − q0)/r + τ (1.569 s), to within one and a half
+    inner steps (the stop is found at the end of the step that crosses it, and the held torque
+    puts the discrete loop within half a step of the continuous one; measured 0.65 ms). Until then
+    the joint moves exactly as a joint without limits; from then on it stays at the limit, is
+    reported at it, and its rate loop's integral does not move (measured: no torque saturation,
+    so the linear loop's delay applies)."""
+    from gimbal_lab.control import RateLoop
+
+    rate, n = 0.5, 2600
+    hi = KIN.joint_limits_rad[2][1]
+    free_kin = GimbalKinematics(joint_limits_rad=((-math.inf, math.inf),) * 3)
+    runs = {}
+    for name, kin in (("stopped", KIN), ("free", free_kin)):
+        m = GimbalMount(kin, BodyMotion.static(), "active", DT, n)
+        q, at, integral, saturated = [], [], [], False
+        for _ in range(n):
+            m.advance(1, (0.0, 0.0, rate))
+            q.append(m.q[2])
+            at.append(m.at_limit)
+            integral.append(m.rate_loops[2].pid.integral)
+            saturated |= m.axes[2].saturated
+        runs[name] = np.array(q), np.array(at), np.array(integral)
+        assert not saturated
+    q, at, integral = runs["stopped"]
+    k = int(np.argmax(at[:, 2]))  # first step ending at the stop
+    t_stop = (k + 1) * DT
+    plant = AxisPlant.storm32("pitch")
+    tau = _rate_to_axis_mean_delay_s(plant, RateLoop(plant, dt_s=DT).gains)
+    assert abs(t_stop - (hi / rate + tau)) <= 1.5 * DT, (t_stop, hi / rate + tau)
+    np.testing.assert_array_equal(q[:k], runs["free"][0][:k])  # untouched before the stop
+    assert runs["free"][0][k] > hi  # the free joint goes on
+    assert np.all(q[k:] == hi) and at[k:, 2].all() and not at[:k, 2].any()
+    assert not at[:, :2].any()  # yaw and roll stay free
+    assert np.all(integral[k:] == integral[k])  # held: no windup against the stop
+
+
+def test_a_joint_leaves_its_stop_as_soon_as_the_reference_reverses():
+    """After 1 s against the stop the reference reverses: with the integral held at the stop the
+    joint leaves it within 2 inner steps and then follows −r (0.3 s later it has come back
+    r·0.3 = 0.15 rad, within 2 mrad). A rate loop integrating against the stop (measured: its
+    integral winds up to 0.034 N·m, near the torque limit) holds the joint there for 15 steps and
+    lags by 9 mrad."""
+    rate = 0.5
+    hi = KIN.joint_limits_rad[2][1]
+    m = GimbalMount(KIN, BodyMotion.static(), "active", DT, 3000)
+    m.advance(2600, (0.0, 0.0, rate))
+    assert m.at_limit == (False, False, True) and m.q[2] == hi
+    at = []
+    for _ in range(300):
+        m.advance(1, (0.0, 0.0, -rate))
+        at.append(m.at_limit[2])
+    assert not any(at[2:])
+    assert abs((hi - m.q[2]) - rate * 0.3) < 2e-3
+
+
+def test_a_joint_at_its_stop_on_a_swaying_body_stays_at_the_limit():
+    """The stop holds the joint angle, not the camera: on a hovering body the pitch joint driven
+    into its lower stop stays at −90° (to rounding of the base-angle bookkeeping) while the body,
+    and so the camera, keep moving."""
+    body = BodyMotion.hover(seed=2)
+    lo = KIN.joint_limits_rad[2][0]
+    m = GimbalMount(KIN, body, "active", DT, 4000)
+    m.advance(3200, (0.0, 0.0, -1.0))  # 1.57 rad at 1 rad/s: at the stop after about 1.6 s
+    q, turn = [], []
+    R0 = m.T_world_cam(m.q, m.t_s)[:3, :3]
+    for _ in range(800):
+        m.advance(1, (0.0, 0.0, -1.0))
+        q.append(m.q[2])
+        turn.append(np.linalg.norm(attitude_error_rad(m.T_world_cam(m.q, m.t_s)[:3, :3], R0)))
+        assert m.at_limit[2]
+    np.testing.assert_allclose(q, lo, rtol=0, atol=1e-12)
+    assert max(turn) > math.radians(0.5)  # the camera moves with the body meanwhile
+
+
+def test_the_fixed_mount_is_never_at_a_stop():
+    m = GimbalMount(KIN, BodyMotion.hover(seed=1), "fixed", DT, 100)
+    m.advance(100, (0.0, 0.0, 5.0))
+    assert m.at_limit == (False, False, False)

@@ -14,6 +14,7 @@ import pytest
 from gimbal_lab.camera import Intrinsics, project
 from gimbal_lab.detection import SphereDetector
 from gimbal_lab.scene import Occluder, SceneRenderer, points_visible, sphere_rim_points
+from gimbal_lab.config import Camera, Platform, Pointing, Target
 from gimbal_lab.simulation import TrackingConfig, simulate
 
 CAM = Intrinsics.default()
@@ -136,7 +137,8 @@ def test_fast_motion_blur_refuses_occluders(scene):
     with pytest.raises(ValueError, match="occluders"):
         renderer.render_motion(lambda t: (T_cam, T_target), 0.0, 1 / 60)
     with pytest.raises(ValueError, match="occluders"):
-        TrackingConfig(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),), exposure_s=1 / 60, blur="fast")
+        TrackingConfig(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+                       camera=Camera(exposure_s=1 / 60, blur="fast"))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -145,7 +147,7 @@ def test_hidden_frames_are_those_whose_centre_pixel_shows_the_occluder():
     from gimbal_lab.simulation import closed_loop, make_renderer
 
     pole = Occluder("pole", centre_m=(0.83, 0.0, 0.98), size_m=(0.15, 0.15, 1.955))
-    config = TrackingConfig(mode="passive", occluders=(pole,), revolutions=1.0, noise_std=0.0, seed=2)
+    config = TrackingConfig(target=Target(occluders=(pole,)), camera=Camera(noise_std=0.0), revolutions=1.0, seed=2)
     renderer = make_renderer(config)
     try:
         rows = list(closed_loop(config, renderer))
@@ -169,23 +171,24 @@ def test_hidden_frames_are_those_whose_centre_pixel_shows_the_occluder():
 
 def test_config_round_trips_occluders_filters_and_the_manoeuvring_path():
     pole = Occluder("pole", centre_m=(0.83, 0.0, 0.98), size_m=(0.15, 0.15, 1.955))
-    config = TrackingConfig(trajectory="manoeuvring", mode="active", outer_loop="filter", target_filter="ca",
-                            occluders=(pole,), seed=4)
+    config = TrackingConfig(target=Target(trajectory="manoeuvring", occluders=(pole,)),
+                            pointing=Pointing("filter", "ca"), seed=4)
     again = TrackingConfig.from_dict(config.to_dict())
     assert again == config and again.key == config.key
-    assert config.path is TrackingConfig(trajectory="manoeuvring", seed=4).path  # drawn once per seed
-    assert not np.allclose(config.path.position(1.0), TrackingConfig(trajectory="manoeuvring", seed=5).path.position(1.0))
-    with pytest.raises(ValueError, match="target_filter"):
-        TrackingConfig(target_filter="ekf")
+    manoeuvring = TrackingConfig(target=Target(trajectory="manoeuvring"))
+    assert config.path is manoeuvring.with_(seed=4).path  # drawn once per seed
+    assert not np.allclose(config.path.position(1.0), manoeuvring.with_(seed=5).path.position(1.0))
+    with pytest.raises(ValueError, match="pointing.filter"):
+        Pointing("filter", "ekf")
     with pytest.raises(TypeError, match="Occluder"):
-        TrackingConfig(occluders=((1, 2, 3),))
-    with pytest.raises(ValueError, match="still body"):
-        TrackingConfig(mode="active", outer_loop="filter", motion="hover")
+        Target(occluders=((1, 2, 3),))
+    with pytest.raises(ValueError, match="still platform"):
+        TrackingConfig(pointing=Pointing("filter"), platform=Platform(motion="hover"))
 
 
 def test_filter_pointing_run_logs_a_consistent_prediction_and_is_deterministic():
-    config = TrackingConfig(trajectory="manoeuvring", mode="active", outer_loop="filter", target_filter="cv",
-                            revolutions=0.5, seed=1)
+    config = TrackingConfig(target=Target(trajectory="manoeuvring"), pointing=Pointing("filter", "cv"), revolutions=0.5,
+                            seed=1)
     a, b = simulate(config), simulate(config)
     assert a.frames.equals(b.frames)
     f = a.frames

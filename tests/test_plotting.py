@@ -52,8 +52,9 @@ def test_distortion_explorer_starts_at_the_given_lens_and_keeps_its_other_coeffi
 def cell_runs():
     from gimbal_lab.simulation import TrackingConfig, simulate
 
-    base = dict(target="sphere", distortion="default", revolutions=0.5, width=320, height=240, start_phase_s=0.3)
-    return [simulate(TrackingConfig(mode=m, seed=s, **base)) for s in (0, 1) for m in ("passive", "active")]
+    base = TrackingConfig().with_(camera__lens="default", camera__width=320, camera__height=240,
+                                  target__start_phase_s=0.3, revolutions=0.5)
+    return [simulate(base.with_(pointing__kind=kind, seed=s)) for s in (0, 1) for kind in ("stabilised", "paper")]
 
 
 def test_run_frame_shows_both_cameras_at_the_instant_and_the_error_trace(cell_runs):
@@ -68,7 +69,7 @@ def test_run_frame_shows_both_cameras_at_the_instant_and_the_error_trace(cell_ru
     for result, shown in zip((passive, active), images):
         row, image = list(replay(result))[7]
         past = result.frames.iloc[:8]
-        want = annotate(image, row, result.config, zip(past["true_u_px"], past["true_v_px"]), title=result.config.mode.upper())
+        want = annotate(image, row, result.config, zip(past["true_u_px"], past["true_v_px"]), title=result.config.pointing.mode.upper())
         assert np.array_equal(np.asarray(shown), want)
     trace = fig.axes[2]
     marker = [line for line in trace.get_lines() if line.get_linestyle() == "--"]

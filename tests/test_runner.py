@@ -32,21 +32,22 @@ import pytest
 from pandas.testing import assert_frame_equal
 
 from gimbal_lab import runner
+from gimbal_lab.config import Pointing
 from gimbal_lab.runner import ResultsStore, RunInterrupted, dask_executor, run, source_hash, staged_folder
 from gimbal_lab.simulation import TrackingConfig
 
 
 def cfg(**changes) -> TrackingConfig:
-    """A cheap config: small images and 0.1 revolution (6 frames) unless told otherwise."""
-    base = dict(target="sphere", mode="passive", revolutions=0.1, width=160, height=120)
-    return TrackingConfig(**{**base, **changes})
+    """A cheap config: small images and 0.1 revolution (6 frames) unless told otherwise (``changes``
+    as :meth:`TrackingConfig.with_` takes them, ``part__field=value``)."""
+    return TrackingConfig().with_(**{"revolutions": 0.1, "camera__width": 160, "camera__height": 120, **changes})
 
 
 #: A few different configs (targets, modes, lenses) for the executor comparisons.
 CONFIGS = [
     cfg(seed=0),
-    cfg(mode="active", distortion="default", seed=1),
-    cfg(target="aruco", trajectory="diagonal", revolutions=0.15, seed=2),
+    cfg(pointing__kind="paper", camera__lens="default", seed=1),
+    cfg(target__kind="aruco", target__trajectory="diagonal", revolutions=0.15, seed=2),
 ]
 
 
@@ -160,6 +161,12 @@ def _corrupt(kind: str, store: ResultsStore, c: TrackingConfig, other: TrackingC
     if kind == "table of another run":  # same length, valid Parquet, valid page checksums
         shutil.copyfile(store.paths(other)[0], table)
         return table
+    if kind == "sidecar of the flat config":  # written before the config had parts: its fields in one table
+        meta = json.loads(sidecar.read_text())
+        meta["config"] = {k: v for part in meta["config"].values() if isinstance(part, dict) for k, v in part.items()}
+        meta["config"].update(revolutions=c.revolutions, seed=c.seed, mode="passive", distortion="none")
+        sidecar.write_text(json.dumps(meta))
+        return sidecar
     if kind == "truncated parquet":
         data = table.read_bytes()
         table.write_bytes(data[: len(data) // 2])
@@ -189,7 +196,7 @@ def _aside(path: Path) -> Path:
 
 
 @pytest.mark.parametrize("kind", ["garbage sidecar", "sidecar not text", "sidecar of another format",
-                                  "sidecar of another config", "table of another run", "truncated parquet",
+                                  "sidecar of another config", "sidecar of the flat config", "table of another run", "truncated parquet",
                                   "empty parquet", "parquet with fewer frames", "parquet missing",
                                   "folder in place of the table", "folder in place of the sidecar"])
 def test_corrupt_entry_is_moved_aside_with_a_warning_and_recomputed(tmp_path, monkeypatch, kind):
@@ -945,7 +952,7 @@ def test_ctrl_c_stops_workers_keeps_finished_runs_and_resumes(tmp_path):
     # Different lengths (longest is started first): one result lands while the others still run.
     # Worker 1 runs the 10-revolution config (~2.5 s), worker 2 the 2-revolution one and then idles:
     # when the first result lands, worker 1 still has ~2 s to go.
-    configs = [cfg(revolutions=10, seed=30), cfg(revolutions=2, mode="active", seed=31)]
+    configs = [cfg(revolutions=10, seed=30), cfg(revolutions=2, pointing__kind="paper", seed=31)]
     with _sweep(tmp_path, configs) as (proc, runs, args, seen):
         _wait_first_result(proc, runs, seen)
         assert len(_workers(seen, proc.pid)) == 2, seen
@@ -996,7 +1003,7 @@ def test_a_worker_killed_mid_sweep_is_replaced_and_every_run_lands_unchanged(tmp
     """A worker that dies (a crash in native code, the out-of-memory killer; here SIGKILL) breaks
     the local pool; the sweep starts new workers for the unfinished runs, says so, and ends with
     every run stored, each bit-equal to a clean run."""
-    configs = [cfg(revolutions=10, seed=60), cfg(revolutions=2, seed=61), cfg(revolutions=2, mode="active", seed=62)]
+    configs = [cfg(revolutions=10, seed=60), cfg(revolutions=2, seed=61), cfg(revolutions=2, pointing__kind="paper", seed=62)]
     with _sweep(tmp_path, configs) as (proc, runs, _, seen):
         _wait_first_result(proc, runs, seen)
         workers = [p for p in _workers(seen, proc.pid) if _alive(p)]
@@ -1347,9 +1354,9 @@ def test_a_worker_keeps_at_most_max_renderers_and_closes_the_least_recently_used
 
     monkeypatch.setattr(runner, "make_renderer", Fake)
     monkeypatch.setattr(runner, "_RENDERERS", {})
-    configs = [TrackingConfig(sphere_radius_m=0.1 * (1 + i)) for i in range(runner.MAX_RENDERERS + 2)]
+    configs = [TrackingConfig().with_(target__sphere_radius_m=0.1 * (1 + i)) for i in range(runner.MAX_RENDERERS + 2)]
     first = runner._renderer_for(configs[0])
-    assert runner._renderer_for(TrackingConfig(seed=9, mode="active")) is first  # same key: shared
+    assert runner._renderer_for(TrackingConfig(seed=9, pointing=Pointing("paper"))) is first  # same key: shared
     for c in configs[1:runner.MAX_RENDERERS]:
         runner._renderer_for(c)
     assert runner._renderer_for(configs[0]) is first and not closed  # used again: now the most recent

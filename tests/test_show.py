@@ -13,27 +13,34 @@ import numpy as np
 import pytest
 
 from gimbal_lab.show import annotate, replay, side_by_side, write_clip
-from gimbal_lab.simulation import TrackingConfig, TrackingResult, _Estimator, closed_loop, make_renderer, simulate
+from gimbal_lab.simulation import TrackingConfig, TrackingResult, closed_loop, make_renderer, simulate
+
+_BASE = TrackingConfig().with_(pointing__kind="paper", camera__lens="default", camera__width=320, camera__height=240,
+                               target__start_phase_s=0.4, revolutions=0.25, seed=3)
+_POINTING = {"passive": "stabilised", "active": "paper"}
 
 
 def cfg(**changes) -> TrackingConfig:
-    base = dict(target="sphere", mode="active", distortion="default", revolutions=0.25, seed=3, start_phase_s=0.4,
-                width=320, height=240)
-    return TrackingConfig(**{**base, **changes})
+    """The test's run with ``changes`` (``part__field=value``, as :meth:`TrackingConfig.with_`)."""
+    return _BASE.with_(**changes)
+
+
+def estimator_of(config):
+    return config.estimator.build(config.camera, config.target)
 
 
 @pytest.fixture(scope="module")
 def runs():
-    return {mode: simulate(cfg(mode=mode)) for mode in ("passive", "active")}
+    return {mode: simulate(cfg(pointing__kind=_POINTING[mode])) for mode in ("passive", "active")}
 
 
-@pytest.mark.parametrize("changes", [{}, {"target": "aruco", "distortion": "none", "noise_std": 3.0}],
+@pytest.mark.parametrize("changes", [{}, {"target__kind": "aruco", "camera__lens": "none", "camera__noise_std": 3.0}],
                          ids=["sphere-distorted", "aruco"])
 def test_replayed_frames_are_the_runs_own(changes):
     """Same poses, same noise stream: the run's detector gives bit-identical pixel centres."""
     config = cfg(**changes)
     result = simulate(config)
-    estimate = _Estimator(config)
+    estimate = estimator_of(config)
     rows = 0
     for row, image in replay(result):
         uv, _, _ = estimate(image)
@@ -64,9 +71,9 @@ def test_one_frame_from_the_middle_is_the_runs_own(runs):
 
 
 def test_blurred_frames_replay_exactly():
-    config = cfg(exposure_s=1 / 60, n_subframes=4, revolutions=0.15)
+    config = cfg(camera__exposure_s=1 / 60, camera__n_subframes=4, revolutions=0.15)
     result = simulate(config)
-    estimate = _Estimator(config)
+    estimate = estimator_of(config)
     assert result.frames.detected.sum() >= 5
     for row, image in replay(result):
         uv, _, _ = estimate(image)
@@ -78,7 +85,8 @@ def test_blurred_frames_replay_exactly():
 
 def test_a_moving_drones_blurred_frames_are_the_closed_loops_own():
     """Vibrating body, active mount, fast blur, rolling shutter: replay runs the loop again."""
-    config = cfg(motion="vibration", exposure_s=1 / 60, blur="fast", readout_s=0.01, revolutions=0.2)
+    config = cfg(platform__motion="vibration", camera__exposure_s=1 / 60, camera__blur="fast", camera__readout_s=0.01,
+                 revolutions=0.2)
     renderer = make_renderer(config)
     try:
         images = [image for _, image in closed_loop(config, renderer)]
@@ -103,7 +111,7 @@ def test_overlays_land_on_the_true_centre_and_the_image_centre(runs):
     u, v = round(row.true_u_px), round(row.true_v_px)
     ring = out[v - 7, u]  # the green ring's top
     assert ring[1] > 150 and ring[0] < 120 and ring[2] < 120
-    cx, cy = round(config.intrinsics.cx), round(config.intrinsics.cy)
+    cx, cy = round(config.camera.intrinsics.cx), round(config.camera.intrinsics.cy)
     assert np.all(np.abs(out[cy, cx + 8].astype(int) - 170) < 40)  # grey cross arm
     # far from every overlay the frame is untouched
     assert np.array_equal(out[-5:, -5:], image[-5:, -5:])
@@ -111,15 +119,15 @@ def test_overlays_land_on_the_true_centre_and_the_image_centre(runs):
 
 def test_side_by_side_puts_passive_left_at_the_same_instants(runs):
     frames = list(side_by_side(runs["passive"], runs["active"], every=2))
-    w, h = runs["passive"].config.width, runs["passive"].config.height
+    w, h = runs["passive"].config.camera.width, runs["passive"].config.camera.height
     assert len(frames) == len(range(0, runs["passive"].config.n_frames, 2))
     assert frames[0].shape == (h, 2 * w + 4, 3)
     assert np.all(frames[0][:, w:w + 4] == 255)
 
 
 def test_side_by_side_refuses_runs_of_different_cells(runs):
-    other = simulate(cfg(mode="passive", target="aruco", revolutions=0.1))
-    with pytest.raises(ValueError, match="differ only in mode; they differ in target"):
+    other = simulate(cfg(pointing__kind="stabilised", target__kind="aruco", revolutions=0.1))
+    with pytest.raises(ValueError, match="differ only in pointing; they differ in target.kind, n_frames"):
         next(side_by_side(other, runs["active"]))
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from gimbal_lab import stats
 from gimbal_lab.camera import BrownConrady, KannalaBrandt, project
+from gimbal_lab.config import Camera
 from gimbal_lab.simulation import CONE_RANGE_M, TrackingConfig, TrackingResult
 from gimbal_lab.studies import load
 from gimbal_lab.studies import lens_sweep as ls
@@ -26,22 +27,24 @@ def test_grid_is_76_cells_times_replicates_with_shared_draws():
     study = ls.LensSweepStudy(replicates=2, first_seed=3)
     configs = ls.grid(study)
     assert len(configs) == 76 * 2
-    cells = {(c.target, ls.lens_name(c), c.lens_strategy, c.mode) for c in configs}
+    cells = {(c.target.kind, ls.lens_name(c), c.estimator.lens_strategy, c.pointing.mode) for c in configs}
     expected = {(t, lens.name, s, m) for t in ls.TARGETS for lens in ls.LENSES for s in ls.strategies_for(lens.name)
                 for m in ls.MODES}
     assert cells == expected and len(expected) == 76
     assert ls.strategies_for("pinhole") == ("ignore",)
     for c in configs:
-        assert c.trajectory == "cone" and c.altitude_m == ls.ALTITUDE_M
-        assert c.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        assert c.target.trajectory == "cone" and c.platform.altitude_m == ls.ALTITUDE_M
+        assert c.target.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        assert c.pointing.kind == ("paper" if c.pointing.active else "stabilised")
     assert sorted({c.seed for c in configs}) == [3, 4]
     # the lenses: the default Brown–Conrady scaled, and equidistant fisheyes
     by_lens = {ls.lens_name(c): c for c in configs}
-    assert by_lens["pinhole"].lens is None
-    assert by_lens["BC ×1.5"].lens.k1 == pytest.approx(1.5 * BrownConrady.default().k1, rel=1e-15)
-    assert by_lens["BC ×0.5"].lens.p2 == pytest.approx(0.5 * BrownConrady.default().p2, rel=1e-15)
-    assert by_lens["fisheye 185°"].lens == KannalaBrandt()
-    assert math.degrees(by_lens["fisheye 150°"].hfov_rad) == pytest.approx(150.0)
+    lens_of = {name: c.camera.lens_model for name, c in by_lens.items()}
+    assert lens_of["pinhole"] is None
+    assert lens_of["BC ×1.5"].k1 == pytest.approx(1.5 * BrownConrady.default().k1, rel=1e-15)
+    assert lens_of["BC ×0.5"].p2 == pytest.approx(0.5 * BrownConrady.default().p2, rel=1e-15)
+    assert lens_of["fisheye 185°"] == KannalaBrandt()
+    assert math.degrees(by_lens["fisheye 150°"].camera.hfov_rad) == pytest.approx(150.0)
 
 
 @pytest.mark.parametrize("lens", [x.name for x in ls.LENSES])
@@ -49,18 +52,18 @@ def test_targets_image_as_in_the_paper_study_on_the_axis_and_the_cone_sits_at_0_
     c = ls.LensSweepStudy(replicates=2).config("sphere", lens, "ignore", "passive", 0)
     # on the axis at 3 m a point r off it is imaged where the paper camera images it, to 0.5 %: the size
     # follows the focal length, and the equidistant fisheye's atan(r/3) falls short of r/3 by 0.3 % at 185°
-    edge = np.array([[c.sphere_radius_m, 0.0, CONE_RANGE_M]])
-    radius_px = project(edge, c.intrinsics, c.lens)[0, 0] - c.intrinsics.cx
+    edge = np.array([[c.target.sphere_radius_m, 0.0, CONE_RANGE_M]])
+    radius_px = project(edge, c.camera.intrinsics, c.camera.lens_model)[0, 0] - c.camera.intrinsics.cx
     paper_px = 554.2562584220408 * 0.10 / CONE_RANGE_M
     assert radius_px == pytest.approx(paper_px, rel=5e-3)
-    assert c.marker_length_m / c.sphere_radius_m == pytest.approx(3.0)
+    assert c.target.marker_length_m / c.target.sphere_radius_m == pytest.approx(3.0)
     # every point of the path is 3 m from the home camera, 0.7 × half field off the home axis
     p = c.path.position(np.linspace(0.0, 2.0, 13)) - c.home_camera_m
     assert np.linalg.norm(p, axis=1) == pytest.approx(np.full(13, CONE_RANGE_M), abs=1e-12)
     off_axis = np.degrees(np.arccos(p[:, 0] / CONE_RANGE_M))
-    assert off_axis == pytest.approx(np.full(13, 0.35 * math.degrees(c.hfov_rad)), abs=1e-9)
+    assert off_axis == pytest.approx(np.full(13, 0.35 * math.degrees(c.camera.hfov_rad)), abs=1e-9)
     # the widest target stays above the ground
-    lowest = c.path.position(np.linspace(0.0, 2.0, 721))[:, 2].min() - 2 / 3 * c.marker_length_m
+    lowest = c.path.position(np.linspace(0.0, 2.0, 721))[:, 2].min() - 2 / 3 * c.target.marker_length_m
     assert lowest > 0.5
 
 
@@ -90,7 +93,7 @@ def test_config_from_toml_and_the_shipped_file_is_the_default(tmp_path):
 
 def test_lens_name_rejects_a_lens_outside_the_sweep():
     with pytest.raises(ValueError, match="not one of the sweep"):
-        ls.lens_name(TrackingConfig(distortion=BrownConrady(k1=-0.1)))
+        ls.lens_name(TrackingConfig(camera=Camera(lens=BrownConrady(k1=-0.1))))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -216,7 +219,7 @@ def test_a_partial_table_checks_what_it_holds():
 def test_the_cones_pointing_demand_matches_a_numerical_derivative_of_the_direction(lens):
     c = ls.LensSweepStudy(replicates=2).config("sphere", lens, "ignore", "active", 0)
     demand = ls.cone_pointing_demand(c)
-    t = np.linspace(0.0, c.period_s, 20001)
+    t = np.linspace(0.0, c.target.period_s, 20001)
     d = c.path.position(t) - c.home_camera_m
     yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
     pitch = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))

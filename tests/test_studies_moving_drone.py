@@ -10,7 +10,7 @@ import pytest
 
 from gimbal_lab import stats
 from gimbal_lab.platform import WaypointFlight
-from gimbal_lab.simulation import TrackingConfig, TrackingResult
+from gimbal_lab.simulation import TrackingResult
 from gimbal_lab.studies import _params, load
 from gimbal_lab.studies import moving_drone as md
 from gimbal_lab.studies.paper import replicate_phase_s
@@ -26,15 +26,16 @@ def test_grid_is_36_cells_times_replicates_with_shared_draws():
     study = md.MovingDroneStudy(replicates=3, first_seed=5)
     configs = md.grid(study)
     assert len(configs) == 36 * 3
-    cells = {(c.target, c.motion, c.mount, "rolling" if c.readout_s else "global") for c in configs}
+    cells = {(c.target.kind, c.platform.motion, c.pointing.mount, "rolling" if c.camera.readout_s else "global")
+             for c in configs}
     assert cells == set(itertools.product(md.TARGETS, md.MOTIONS, md.MOUNTS, md.SHUTTERS))
     for c in configs:
-        assert (c.exposure_s, c.blur, c.trajectory) == (1 / 60, "fast", "circular")
-        assert c.readout_s in (0.0, 0.020)
-        assert c.gyro_noise_rad_s_rthz == pytest.approx(math.radians(0.005), rel=1e-12)
-        assert c.mode == ("active" if c.mount == "active" else "passive")
-        assert c.start_phase_s == replicate_phase_s(c.seed, 2.0)
-        assert c.motion_phase_s == (md.flight_phase_s(c.seed) if c.motion == "flight" else 0.0)
+        assert (c.camera.exposure_s, c.camera.blur, c.target.trajectory) == (1 / 60, "fast", "circular")
+        assert c.camera.readout_s in (0.0, 0.020)
+        assert c.gimbal.gyro_noise_rad_s_rthz == pytest.approx(math.radians(0.005), rel=1e-12)
+        assert c.pointing.kind == {"active": "paper"}.get(c.pointing.mount, c.pointing.mount)  # paper's loop if active
+        assert c.target.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        assert c.platform.motion_phase_s == (md.flight_phase_s(c.seed) if c.platform.motion == "flight" else 0.0)
     assert sorted({c.seed for c in configs}) == [5, 6, 7]
     phases = [md.flight_phase_s(s) for s in range(200)]
     assert 0.0 <= min(phases) and max(phases) < WaypointFlight().period_s == 10.0
@@ -111,8 +112,8 @@ def fake_run(mount, detected, errors, streaks, seed=0, shutter="global", motion=
     assert len(detected) == n
     frames = pd.DataFrame({
         "frame": np.arange(2 * n),
-        "t_s": np.arange(2 * n) / config.fps,
-        "t_mid_s": np.arange(2 * n) / config.fps,
+        "t_s": np.arange(2 * n) / config.camera.fps,
+        "t_mid_s": np.arange(2 * n) / config.camera.fps,
         "detected": np.r_[np.ones(n, bool), detected],
         "abs_error_m": np.r_[np.ones(n), np.where(detected, errors, np.nan)],
         "streak_px": np.r_[np.full(n, 99.0), streaks],

@@ -26,13 +26,13 @@ def test_occluders_hide_the_circle_for_their_stated_time(occlusion, wanted_s):
     (occluder,) = oc.occluders_for(occlusion)
     config = TrackingConfig()
     # brute force, independent of hidden_time_s: 1 ms steps, the sight line sampled every 0.2 mm
-    t = np.arange(0.0, config.period_s, 1e-3)
+    t = np.arange(0.0, config.target.period_s, 1e-3)
     camera = config.home_camera_m
     lo, hi = occluder.bounds_m
     s = np.linspace(0.0, 1.0, 20001)[:, None]
     hidden = [np.any(np.all((camera + s * (p - camera) >= lo) & (camera + s * (p - camera) <= hi), axis=1))
               for p in config.path.position(t)]
-    assert np.mean(hidden) * config.period_s == pytest.approx(wanted_s, abs=0.003)
+    assert np.mean(hidden) * config.target.period_s == pytest.approx(wanted_s, abs=0.003)
     assert occluder.centre_m[1] == 0.0 and occluder.bounds_m[1][2] == pytest.approx(camera[2])  # top at the camera
 
 
@@ -42,7 +42,7 @@ def test_the_longest_occlusion_hides_the_arc_below_the_camera():
     hidden_s = oc.hidden_time_s(panel)
     # the circle (radius 1 m about z = 2 m) is below the camera's height z_c for a fraction
     # 1/2 − asin((2 − z_c)/1)/π of the period
-    below_s = config.period_s * (0.5 - math.asin(2.0 - config.home_camera_m[2]) / math.pi)
+    below_s = config.target.period_s * (0.5 - math.asin(2.0 - config.home_camera_m[2]) / math.pi)
     assert below_s - 0.01 < hidden_s <= below_s
     assert oc.hidden_time_s(oc._occluder("panel", 0.75, config.home_camera_m)) == pytest.approx(hidden_s, abs=0.006)
 
@@ -53,8 +53,8 @@ def test_grid_is_32_cells_times_replicates_with_shared_draws():
     assert len(configs) == 32 * 3
     assert len({c.key for c in configs}) == len(configs)
     for c in configs:
-        assert c.mode == "active" and c.target == "sphere" and c.revolutions == 3.0
-        assert c.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        assert c.pointing.active and c.target.kind == "sphere" and c.revolutions == 3.0
+        assert c.target.start_phase_s == replicate_phase_s(c.seed, 2.0)
     cells = {oc._names(c) for c in configs}
     assert cells == set(itertools.product(oc.OCCLUSIONS, oc.TARGETS, oc.LOOPS))
     assert load("occlusion").Study is oc.OcclusionStudy
@@ -144,8 +144,8 @@ def test_a_run_that_never_reacquires_leaves_its_reacquisition_unmeasured():
 
 def test_a_config_outside_the_study_is_refused():
     with pytest.raises(ValueError, match="not one of the occlusion study's"):
-        oc.replicate_table([TrackingResult(config=TrackingConfig(trajectory="diagonal", mode="active"),
-                                                frames=pd.DataFrame())])
+        diagonal = TrackingConfig().with_(target__trajectory="diagonal", pointing__kind="paper")
+        oc.replicate_table([TrackingResult(config=diagonal, frames=pd.DataFrame())])
 
 
 # ----------------------------------------------------------------------------------------------

@@ -142,8 +142,9 @@ def test_grid_is_sixteen_cells_times_replicates_with_shared_draws():
     assert len(configs) == 48 and len({c for c in configs}) == 48
     by_seed = {}
     for c in configs:
-        by_seed.setdefault(c.seed, set()).add(c.start_phase_s)
-        assert c.revolutions == 2 and c.noise_std == 2.0 and c.outer_loop == "paper" and c.n_frames == 120
+        by_seed.setdefault(c.seed, set()).add(c.target.start_phase_s)
+        assert c.revolutions == 2 and c.camera.noise_std == 2.0 and c.n_frames == 120
+        assert c.pointing.kind == ("paper" if c.pointing.active else "stabilised")
     # every cell of a replicate shares its start phase; replicates differ
     assert all(len(phases) == 1 for phases in by_seed.values())
     phases = [next(iter(p)) for p in by_seed.values()]
@@ -189,7 +190,7 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
     from gimbal_lab.simulation import simulate
 
     study = paper.PaperStudy(replicates=2, period_s=0.3)  # 2 revolutions of 9 frames
-    cell = [c for c in paper.grid(study) if (c.distortion_label, c.trajectory, c.seed) == (*paper.CLIP_CELL, 0)]
+    cell = [c for c in paper.grid(study) if (c.camera.lens_label, c.target.trajectory, c.seed) == (*paper.CLIP_CELL, 0)]
     other = [c for c in paper.grid(study, targets=("sphere",)) if c.seed == 1][:1]  # not a clip's run
     assert len(cell) == 4
     results = [simulate(c) for c in cell + other]
@@ -199,7 +200,7 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
         cap = cv2.VideoCapture(str(path))
         frames, width = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         cap.release()
-        assert (frames, width) == (cell[0].n_frames, 2 * cell[0].width + 4)
+        assert (frames, width) == (cell[0].n_frames, 2 * cell[0].camera.width + 4)
     # a target whose pair is missing gets no clip (e.g. a study run for one target)
     assert paper.write_clips(tmp_path / "none", results[:1], study) == []
 

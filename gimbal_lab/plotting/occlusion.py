@@ -114,8 +114,9 @@ def plot_occlusion_timelines(results, target: str = "circle", occlusion: str = "
         missed = ~f["detected"].to_numpy(bool)
         ax.plot(t[missed], angle[missed], "x", ms=3, color=_LOOP_COLOURS[loop])
     config = next(iter(chosen.values())).config
-    half_field = np.degrees(config.hfov_rad) / 2
-    ax.axhline(half_field * config.height / config.width, color="k", ls=":", lw=0.8, label="half vertical field")
+    camera = config.camera
+    half_field = np.degrees(camera.horizontal_field_rad) / 2
+    ax.axhline(half_field * camera.height / camera.width, color="k", ls=":", lw=0.8, label="half vertical field")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("optical axis to target [°]")
     ax.set_title(f"{target}, {occlusion}, seed {config.seed} (x: not detected)", fontsize=9)

@@ -118,7 +118,7 @@ def plot_xyz(result, revolution: int = 1, fig=None):
     sel = f[f["revolution"] == revolution]
     for ax, axis in zip(axes, "xyz"):
         ax.plot(sel["t_mid_s"], sel[f"true_{axis}_m"], "k-", lw=1.5, label="ground truth")
-        ax.plot(sel["t_mid_s"], sel[f"est_{axis}_m"], ".", color=_MODE_COLOURS[result.config.mode], ms=4,
+        ax.plot(sel["t_mid_s"], sel[f"est_{axis}_m"], ".", color=_MODE_COLOURS[result.config.pointing.mode], ms=4,
                 label="estimate")
         ax.set_ylabel(f"{axis} [m]")
         ax.grid(alpha=0.3)
@@ -144,7 +144,7 @@ def plot_pixel_offset(results, labels=None, ax=None):
     for r, label in zip(results, labels):
         ax.plot(r.frames["t_mid_s"], r.frames["offset_px"], lw=1, label=label)
     if results:
-        ax.axvspan(0, results[0].config.period_s, color="0.9", zorder=0, label="acquisition")
+        ax.axvspan(0, results[0].config.target.period_s, color="0.9", zorder=0, label="acquisition")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("offset from image centre [px]")
     ax.set_ylim(bottom=0)
@@ -220,17 +220,17 @@ def plot_run_frame(passive, active, frame: int, renderer=None, fig=None):
         row, image = next(replay(result, renderer=renderer, start=frame, stop=frame + 1))
         past = result.frames.iloc[max(0, frame - TRACE_FRAMES + 1): frame + 1]
         ax.imshow(annotate(image, row, result.config, zip(past["true_u_px"], past["true_v_px"]),
-                           title=result.config.mode.upper()))
+                           title=result.config.pointing.mode.upper()))
         ax.set_axis_off()
     ax = fig.add_subplot(grid[1, :])
     for result in (passive, active):
         f = result.frames
-        ax.plot(f["t_mid_s"], 1000 * f["abs_error_m"], color=_MODE_COLOURS[result.config.mode], lw=1.2,
-                label=result.config.mode)
+        ax.plot(f["t_mid_s"], 1000 * f["abs_error_m"], color=_MODE_COLOURS[result.config.pointing.mode], lw=1.2,
+                label=result.config.pointing.mode)
     t = passive.frames["t_mid_s"].iloc[frame]
     ax.axvline(t, color="k", lw=1, ls="--")
     for k in range(1, int(np.ceil(passive.config.revolutions))):
-        ax.axvline(k * passive.config.period_s, color="0.6", lw=0.8, ls=":")
+        ax.axvline(k * passive.config.target.period_s, color="0.6", lw=0.8, ls=":")
     ax.set_xlabel("t [s] (dotted: a new revolution; the first is acquisition)")
     ax.set_ylabel("|d_est − d_true| [mm]")
     ax.set_ylim(bottom=0)
@@ -238,7 +238,7 @@ def plot_run_frame(passive, active, frame: int, renderer=None, fig=None):
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
     c = passive.config
     revolution = int(passive.frames["revolution"].iloc[frame])
-    fig.suptitle(f"{c.target}, {c.distortion_label}, {c.trajectory}, replicate {c.seed}: frame {frame} "
+    fig.suptitle(f"{c.target.kind}, {c.camera.lens_label}, {c.target.trajectory}, replicate {c.seed}: frame {frame} "
                  f"(t = {t:.2f} s, revolution {revolution + 1} of {int(np.ceil(c.revolutions))})", fontsize=10)
     return fig
 
@@ -264,7 +264,7 @@ def run_explorer(results, frame: int | None = None):
     pairs: dict = {}
     for r in results:
         c = r.config
-        pairs.setdefault((f"{c.distortion_label}/{c.trajectory}", c.seed), {})[c.mode] = r
+        pairs.setdefault((f"{c.camera.lens_label}/{c.target.trajectory}", c.seed), {})[c.pointing.mode] = r
     pairs = {k: v for k, v in pairs.items() if set(v) == {"passive", "active"}}
     if not pairs:
         raise ValueError("results hold no cell with both a passive and an active run")
@@ -280,7 +280,7 @@ def run_explorer(results, frame: int | None = None):
             print(f"no runs for {cell}, replicate {replicate}")
             return None
         c = pair["passive"].config
-        key = (c.target, c.lens, c.intrinsics)  # what make_renderer builds from
+        key = c.renderer_key  # what make_renderer builds from
         if key not in renderers:
             renderers[key] = make_renderer(c)
         fig = plot_run_frame(pair["passive"], pair["active"], min(frame, len(pair["passive"].frames) - 1),
@@ -383,7 +383,7 @@ def plot_mount_frames(runs, frame: int, renderer=None, zoom_px: int = 48, fig=No
         for col, result in enumerate(runs):
             c = result.config
             row, image = next(replay(result, renderer=renderer, start=frame, stop=frame + 1))
-            axes[0, col].imshow(annotate(image, row, c, title=f"{c.mount.upper()}  streak {row.streak_px:.1f} px"))
+            axes[0, col].imshow(annotate(image, row, c, title=f"{c.pointing.mount.upper()}  streak {row.streak_px:.1f} px"))
             axes[0, col].set_axis_off()
             u, v = row.true_u_px, row.true_v_px
             ax = axes[1, col]
@@ -397,8 +397,10 @@ def plot_mount_frames(runs, frame: int, renderer=None, zoom_px: int = 48, fig=No
         if own:
             renderer.close()
     c = runs[0].config
-    shutter = f"rolling shutter {1000 * c.readout_s:.0f} ms" if c.readout_s > 0 else "global shutter"
-    fig.suptitle(f"{c.target}, {c.motion}, {shutter}, exposure {1000 * c.exposure_s:.1f} ms, replicate {c.seed}: "
+    readout_s = c.camera.readout_s
+    shutter = f"rolling shutter {1000 * readout_s:.0f} ms" if readout_s > 0 else "global shutter"
+    fig.suptitle(f"{c.target.kind}, {c.platform.motion}, {shutter}, exposure {1000 * c.camera.exposure_s:.1f} ms, "
+                 f"replicate {c.seed}: "
                  f"frame {frame} (t = {runs[0].frames['t_s'].iloc[frame]:.2f} s)", fontsize=10)
     return fig
 
@@ -595,36 +597,36 @@ def plot_lens_views(views: dict, fig=None):
 def plot_lens_radii(configs: dict, ax=None):
     """Image radius against field angle for each lens, up to the image's corner.
 
-    ``configs`` maps a label to a :class:`gimbal_lab.simulation.TrackingConfig` (its intrinsics and
-    lens); rays in the horizontal plane are projected through each, so Brown–Conrady's tangential
-    terms show as they act along x. A dot marks the cone trajectory's angle
-    (:data:`gimbal_lab.simulation.CONE_FIELD_FRACTION` of the half field) for configs on the cone.
+    ``configs`` maps a label to a :class:`gimbal_lab.config.TrackingConfig` (its camera's
+    intrinsics and lens); rays in the horizontal plane are projected through each, so
+    Brown–Conrady's tangential terms show as they act along x. A dot marks the cone trajectory's
+    angle (:data:`gimbal_lab.config.CONE_FIELD_FRACTION` of the half field) for configs on the cone.
     """
     from ..camera import project
-    from ..simulation import CONE_FIELD_FRACTION
+    from ..config import CONE_FIELD_FRACTION
 
     if not configs:
         raise ValueError("no lenses to plot")
     if ax is None:
         _, ax = plt.subplots(figsize=(7.5, 4.2), layout="constrained")
     for j, (label, config) in enumerate(configs.items()):
-        K = config.intrinsics
+        K, lens = config.camera.intrinsics, config.camera.lens_model
         corner = float(np.hypot(K.width - 1 - K.cx, K.height - 1 - K.cy))
         theta = np.linspace(0.0, math.radians(179.0), 1000)
-        fisheye = config.lens is not None and type(config.lens).__name__ == "KannalaBrandt"
+        fisheye = lens is not None and type(lens).__name__ == "KannalaBrandt"
         if not fisheye:
             theta = theta[theta < math.radians(85.0)]
         rays = np.column_stack((np.sin(theta), np.zeros_like(theta), np.cos(theta)))
-        radius = project(rays, K, config.lens)[:, 0] - K.cx
+        radius = project(rays, K, lens)[:, 0] - K.cx
         keep = radius <= corner
         if not fisheye:  # a barrel polynomial turns back beyond its field: keep its rising part
             rising = np.r_[True, np.diff(radius) > 0]
             keep &= np.cumprod(rising).astype(bool)
         colour = plt.cm.viridis(j / max(len(configs) - 1, 1))
         ax.plot(np.degrees(theta[keep]), radius[keep], color=colour, label=label)
-        if config.trajectory == "cone":
-            beta = CONE_FIELD_FRACTION * 0.5 * config.hfov_rad
-            r = project(np.array([[math.sin(beta), 0.0, math.cos(beta)]]), K, config.lens)[0, 0] - K.cx
+        if config.target.trajectory == "cone":
+            beta = CONE_FIELD_FRACTION * 0.5 * config.camera.horizontal_field_rad
+            r = project(np.array([[math.sin(beta), 0.0, math.cos(beta)]]), K, lens)[0, 0] - K.cx
             ax.plot(math.degrees(beta), r, "o", color=colour, ms=5)
     ax.axhline(319.5, color="0.6", ls=":", lw=1)
     ax.axhline(float(np.hypot(319.5, 239.5)), color="0.6", ls="--", lw=1)

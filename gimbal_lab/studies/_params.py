@@ -72,7 +72,7 @@ class StudyParams:
 
     def _check_replicates(self) -> None:
         """Validate (and normalise) ``replicates``, ``first_seed`` and ``revolutions``, naming the field."""
-        from ..simulation import _number
+        from ..config import _number
 
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))

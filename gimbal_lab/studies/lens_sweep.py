@@ -4,11 +4,11 @@ treat the lens: ignore it (the paper), undistort the detected points, or rectify
 Lenses (:data:`LENSES`): Brown–Conrady with the study's default coefficients scaled by 0, 0.5, 1
 and 1.5 at 60° horizontal field, and equidistant Kannala–Brandt fisheyes (all k = 0, the stated
 choice: the ideal fisheye, whose focal length follows from the field alone) of 120°, 150° and
-185°, every one 640 × 480. Strategies (:data:`STRATEGIES`): :class:`gimbal_lab.simulation.TrackingConfig`
+185°, every one 640 × 480. Strategies (:data:`STRATEGIES`): :class:`gimbal_lab.config.Estimator`
 ``lens_strategy``; the undistorted pinhole has no lens, so it runs "ignore" only.
 
 The target moves at 3 m from the home camera on a cone about the home axis, 0.7 of the half field
-off it (:data:`gimbal_lab.simulation.CONE_FIELD_FRACTION`), one revolution per period. Its size is
+off it (:data:`gimbal_lab.config.CONE_FIELD_FRACTION`), one revolution per period. Its size is
 scaled by f_60°/f so that its image on the axis matches the paper study's (sphere 0.10 m, marker
 0.30 m at f = 554 px). The body hovers still at :data:`ALTITUDE_M` instead of 2 m: the widest
 cone (185°: 2.71 m off the axis) would otherwise pass under the ground.
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ import pandas as pd
 
 from .. import stats
 from ..camera import BrownConrady, Intrinsics, KannalaBrandt
-from ..simulation import TrackingConfig, _choice, _number
+from ..config import Camera, Estimator, Platform, Pointing, Target, TrackingConfig, _choice, _number
 from . import _params
 from ._params import StudyParams
 from .paper import replicate_phase_s
@@ -94,9 +94,9 @@ class Lens:
             return KannalaBrandt.equidistant_for_fov(640, hfov)[1]
         return Intrinsics.from_fov(640, 480, hfov).fx
 
-    def config_fields(self) -> dict:
-        """The TrackingConfig fields of this lens."""
-        return {"distortion": self.model, "hfov_rad": math.radians(self.hfov_deg)}
+    def camera_fields(self) -> dict:
+        """The :class:`~gimbal_lab.config.Camera` fields of this lens."""
+        return {"lens": self.model, "hfov_rad": math.radians(self.hfov_deg)}
 
 
 LENSES = (
@@ -140,7 +140,7 @@ class LensSweepStudy(StudyParams):
     def __post_init__(self):
         self._check_replicates()
         object.__setattr__(self, "period_s", _number("period_s", self.period_s, low=0.0, low_open=True))
-        # the rest is validated by TrackingConfig, naming the field
+        # the rest is validated by the config's parts, naming part and field
         self.config("aruco", "fisheye 185°", "rectify", "active", self.first_seed)
 
     def config(self, target: str, lens: str, strategy: str, mode: str, seed: int) -> TrackingConfig:
@@ -151,12 +151,20 @@ class LensSweepStudy(StudyParams):
         _choice("mode", mode, MODES)
         scale = REFERENCE_FOCAL_PX / _LENS[lens].focal_px
         return TrackingConfig(
-            target=target, trajectory="cone", mode=mode, lens_strategy=strategy, **_LENS[lens].config_fields(),
-            sphere_radius_m=0.10 * scale, marker_length_m=0.30 * scale, altitude_m=ALTITUDE_M,
-            start_phase_s=replicate_phase_s(seed, self.period_s), revolutions=self.revolutions,
-            period_s=self.period_s, fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
-            aruco_refinement=self.aruco_refinement, seed=seed)
+            camera=Camera(**_LENS[lens].camera_fields(), fps=self.fps, latency_frames=self.latency_frames,
+                          noise_std=self.noise_std),
+            platform=Platform(altitude_m=ALTITUDE_M),
+            target=Target(kind=target, trajectory="cone", period_s=self.period_s,
+                          start_phase_s=replicate_phase_s(seed, self.period_s), sphere_radius_m=0.10 * scale,
+                          marker_length_m=0.30 * scale),
+            pointing=Pointing(_POINTING[mode]),
+            estimator=Estimator(lens_strategy=strategy, aruco_refinement=self.aruco_refinement),
+            revolutions=self.revolutions, seed=seed)
 
+
+#: The pointing kind of each mode: passive holds the stabilised gimbal at home, active runs the
+#: paper's image loop.
+_POINTING = {"passive": "stabilised", "active": "paper"}
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
 Study = LensSweepStudy
@@ -177,12 +185,14 @@ def grid(study: LensSweepStudy | None = None, targets=TARGETS, lenses=None) -> l
 # ----------------------------------------------------------------------------------------------
 def lens_name(config: TrackingConfig) -> str:
     """The :data:`LENSES` name of a config's lens (ValueError for a lens outside the sweep)."""
+    camera = config.camera
+    field_rad = camera.horizontal_field_rad
     for lens in LENSES:
-        fields = lens.config_fields()
-        # the pinhole's model is Brown–Conrady with zero coefficients, which a config holds as no lens
-        if (config.lens or BrownConrady()) == fields["distortion"] and math.isclose(config.hfov_rad, fields["hfov_rad"]):
+        fields = lens.camera_fields()
+        # the pinhole's model is Brown–Conrady with zero coefficients, which a camera holds as no lens
+        if (camera.lens_model or BrownConrady()) == fields["lens"] and math.isclose(field_rad, fields["hfov_rad"]):
             return lens.name
-    raise ValueError(f"the config's lens {config.lens!r} at {math.degrees(config.hfov_rad):.1f}° is not one of the "
+    raise ValueError(f"the config's lens {camera.lens_model!r} at {math.degrees(field_rad):.1f}° is not one of the "
                      "sweep's")
 
 
@@ -205,7 +215,7 @@ def replicate_table(results) -> pd.DataFrame:
     groups: dict[tuple, list] = {}
     for r in results:
         c = r.config
-        groups.setdefault((c.target, lens_name(c), c.mode, c.seed), []).append(r)
+        groups.setdefault((c.target.kind, lens_name(c), c.pointing.mode, c.seed), []).append(r)
     rows = []
     for (target, lens, mode, seed), members in groups.items():
         measured = {id(r): r.frames[r.frames["frame"] >= round(r.config.frames_per_revolution)] for r in members}
@@ -217,7 +227,7 @@ def replicate_table(results) -> pd.DataFrame:
             detected = f["detected"].to_numpy()
             rows.append({
                 "target": target, "lens": lens, "family": _LENS[lens].family, "strength": _LENS[lens].strength,
-                "strategy": c.lens_strategy, "mode": mode, "seed": seed, "frames": len(f),
+                "strategy": c.estimator.lens_strategy, "mode": mode, "seed": seed, "frames": len(f),
                 "detection_rate_pct": 100.0 * _mean(detected),
                 "mean_abs_error_m": _mean(f["abs_error_m"].to_numpy()[detected]),
                 "common_rate_pct": 100.0 * _mean(common),
@@ -369,21 +379,21 @@ def example_view(study: LensSweepStudy, target: str, lens: str, phase: float = 0
     """The passive camera's frame of one lens with the target ``phase`` of a period into its cone
     (no noise), and its rectified view (None for the pinhole): ``(image, rectified, config)``."""
     from ..detection import Rectifier
-    from ..kinematics import GimbalKinematics
     from ..simulation import make_renderer
     from ..trajectories import target_pose
 
     strategy = "rectify" if "rectify" in strategies_for(lens) else "ignore"
-    config = replace(study.config(target, lens, strategy, "passive", study.first_seed), start_phase_s=0.0)
+    config = study.config(target, lens, strategy, "passive", study.first_seed).with_(target__start_phase_s=0.0)
     T_world_cam = np.eye(4)  # the home pose: the body's axes are the world's
-    T_world_cam[:3, :3] = GimbalKinematics.default().T_body_cam(np.zeros(3))[:3, :3]
+    T_world_cam[:3, :3] = config.gimbal.kinematics.T_body_cam(np.zeros(3))[:3, :3]
     T_world_cam[:3, 3] = config.home_camera_m
     renderer = make_renderer(config)
     try:
-        image = renderer.render(T_world_cam, target_pose(config.path, phase * config.period_s))
+        image = renderer.render(T_world_cam, target_pose(config.path, phase * config.target.period_s))
     finally:
         renderer.close()
-    rectified = Rectifier(config.intrinsics, config.lens).rectify(image) if config.lens is not None else None
+    camera = config.camera
+    rectified = Rectifier(camera.intrinsics, camera.lens_model).rectify(image) if camera.lens_model is not None else None
     return image, rectified, config
 
 
@@ -400,7 +410,7 @@ def write_report(folder, results, study: LensSweepStudy) -> list[Path]:
         save(plotting.study.plot_lens_sweep(summary, "mean_abs_error_m"), "lens_sweep_error")
         save(plotting.study.plot_lens_sweep(summary, "detection_rate_pct"), "lens_sweep_detection")
         save(plotting.study.plot_lens_costs(summary), "lens_sweep_cost")
-        for target in sorted({r.config.target for r in results}, key=TARGETS.index):
+        for target in sorted({r.config.target.kind for r in results}, key=TARGETS.index):
             views = {lens: example_view(study, target, lens)[:2] for lens in _LENS}
             save(plotting.study.plot_lens_views(views), f"example_views_{target}")
 
@@ -432,11 +442,11 @@ def cone_pointing_demand(config: TrackingConfig) -> dict:
         ``half_angle_deg``, ``peak_yaw_rate_rad_s``, ``peak_pitch_rate_rad_s`` and
         ``peak_elevation_deg`` (the centre of rotation's small offsets from the camera ignored).
     """
-    if config.trajectory != "cone":
-        raise ValueError(f"the config's trajectory is {config.trajectory!r}, not the cone")
-    from ..simulation import CONE_FIELD_FRACTION
+    if config.target.trajectory != "cone":
+        raise ValueError(f"the config's target.trajectory is {config.target.trajectory!r}, not the cone")
+    from ..config import CONE_FIELD_FRACTION
 
-    beta = CONE_FIELD_FRACTION * 0.5 * config.hfov_rad
-    omega = 2.0 * math.pi / config.period_s
+    beta = CONE_FIELD_FRACTION * 0.5 * config.camera.horizontal_field_rad
+    omega = 2.0 * math.pi / config.target.period_s
     return {"half_angle_deg": math.degrees(beta), "peak_yaw_rate_rad_s": omega * math.tan(beta),
             "peak_pitch_rate_rad_s": omega * math.sin(beta), "peak_elevation_deg": math.degrees(beta)}

@@ -35,7 +35,7 @@ import pandas as pd
 from .. import stats
 from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
-from ..simulation import TrackingConfig, _choice, _number
+from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number
 from . import _params
 from ._params import StudyParams
 from .paper import replicate_phase_s
@@ -104,7 +104,7 @@ class MovingDroneStudy(StudyParams):
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("exposure_s", _number("exposure_s", self.exposure_s, low=0.0, low_open=True))
         set_("readout_s", _number("readout_s", self.readout_s, low=0.0, low_open=True))
-        # the rest is validated by TrackingConfig, naming the field
+        # the rest is validated by the config's parts, naming part and field
         for shutter in SHUTTERS:
             self.config("sphere", "flight", "active", shutter, self.first_seed)
 
@@ -115,15 +115,19 @@ class MovingDroneStudy(StudyParams):
         _choice("mount", mount, MOUNTS)
         _choice("shutter", shutter, SHUTTERS)
         return TrackingConfig(
-            target=target, trajectory="circular", mode="active" if mount == "active" else "passive",
-            passive_mount="stabilised" if mount == "active" else mount, motion=motion,
-            motion_phase_s=flight_phase_s(seed) if motion == "flight" else 0.0,
-            start_phase_s=replicate_phase_s(seed, self.period_s), revolutions=self.revolutions,
-            period_s=self.period_s, fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
-            exposure_s=self.exposure_s, blur="fast", readout_s=self.readout_s if shutter == "rolling" else 0.0,
-            gyro_noise_rad_s_rthz=math.radians(self.gyro_noise_deg_s_rthz), aruco_refinement=self.aruco_refinement,
-            seed=seed)
+            camera=Camera(fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
+                          exposure_s=self.exposure_s, blur="fast",
+                          readout_s=self.readout_s if shutter == "rolling" else 0.0),
+            gimbal=Gimbal(gyro_noise_rad_s_rthz=math.radians(self.gyro_noise_deg_s_rthz)),
+            platform=Platform(motion=motion, motion_phase_s=flight_phase_s(seed) if motion == "flight" else 0.0),
+            target=Target(kind=target, trajectory="circular", period_s=self.period_s,
+                          start_phase_s=replicate_phase_s(seed, self.period_s)),
+            pointing=Pointing(_POINTING[mount]), estimator=Estimator(aruco_refinement=self.aruco_refinement),
+            revolutions=self.revolutions, seed=seed)
 
+
+#: The pointing kind of each mount: the active mount runs the paper's image loop.
+_POINTING = {"fixed": "fixed", "stabilised": "stabilised", "active": "paper"}
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
 Study = MovingDroneStudy
@@ -146,12 +150,12 @@ def grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOTIONS
 # tables
 # ----------------------------------------------------------------------------------------------
 def _shutter(config: TrackingConfig) -> str:
-    return "rolling" if config.readout_s > 0 else "global"
+    return "rolling" if config.camera.readout_s > 0 else "global"
 
 
 def _identity(config: TrackingConfig) -> dict:
-    return {"target": config.target, "motion": config.motion, "mount": config.mount, "shutter": _shutter(config),
-            "seed": config.seed}
+    return {"target": config.target.kind, "motion": config.platform.motion, "mount": config.pointing.mount,
+            "shutter": _shutter(config), "seed": config.seed}
 
 
 def _measured(result) -> pd.DataFrame:
@@ -181,7 +185,7 @@ def replicate_table(results) -> pd.DataFrame:
     groups: dict[tuple, list] = {}
     for r in results:
         c = r.config
-        groups.setdefault((c.target, c.motion, _shutter(c), c.seed), []).append(r)
+        groups.setdefault((c.target.kind, c.platform.motion, _shutter(c), c.seed), []).append(r)
     rows = []
     for members in groups.values():
         measured = {id(r): _measured(r) for r in members}
@@ -203,8 +207,8 @@ def replicate_table(results) -> pd.DataFrame:
                 "max_streak_px": float(f["streak_px"].max()) if len(f) else math.nan,
                 "jitter_deg": _mean(f["cam_turn_deg"]),
                 "mean_true_offset_px": _mean(f["true_offset_px"]),
-                "time_to_centre_s": (_time_to_centre(acquiring, CENTRED_FRACTION * c.width)
-                                     if c.mode == "active" else math.nan),
+                "time_to_centre_s": (_time_to_centre(acquiring, CENTRED_FRACTION * c.camera.width)
+                                     if c.pointing.active else math.nan),
             })
     order = {name: i for i, name in enumerate(TARGETS + MOTIONS + MOUNTS + SHUTTERS)}
     table = pd.DataFrame(rows)
@@ -354,8 +358,9 @@ def example_runs(results, target: str, motion: str = EXAMPLE_MOTION, shutter: st
     if not seeds:
         raise ValueError("no runs given")
     seed = seeds[0] if seed is None else seed
-    runs = {r.config.mount: r for r in results
-            if (r.config.target, r.config.motion, _shutter(r.config), r.config.seed) == (target, motion, shutter, seed)}
+    runs = {r.config.pointing.mount: r for r in results
+            if (r.config.target.kind, r.config.platform.motion, _shutter(r.config), r.config.seed)
+            == (target, motion, shutter, seed)}
     missing = [m for m in MOUNTS if m not in runs]
     if missing:
         raise ValueError(f"no {', '.join(missing)} run of {target}/{motion}/{shutter}, seed {seed}")
@@ -373,7 +378,7 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
 
     def figures(save, results, summary):
         save(plotting.study.plot_mount_bars(summary), "mount_bars")
-        for target in sorted({r.config.target for r in results}, key=TARGETS.index):
+        for target in sorted({r.config.target.kind for r in results}, key=TARGETS.index):
             runs = example_runs(results, target)
             frame = int(round(runs[0].config.frames_per_revolution * 1.25))
             save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")

@@ -52,7 +52,7 @@ from __future__ import annotations
 import functools
 import math
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +60,7 @@ import pandas as pd
 
 from .. import stats
 from ..scene import Occluder, points_visible
-from ..simulation import TrackingConfig, _choice, _number
+from ..config import Camera, Pointing, Target, TrackingConfig, _choice, _number
 from . import _params
 from ._params import StudyParams
 from .paper import replicate_phase_s
@@ -77,10 +77,11 @@ DESCRIPTION = ("occlusion and manoeuvres: a pole and a panel hide the target 0.2
 
 #: Occlusion conditions: name → (occluder, hidden time per revolution of the circle, s), or None.
 OCCLUSIONS = {"none": None, "pole 0.2 s": ("pole", 0.2), "panel 0.5 s": ("panel", 0.5), "panel 1.0 s": ("panel", 1.0)}
-#: Targets: name → TrackingConfig trajectory.
+#: Targets: name → the target's trajectory.
 TARGETS = {"circle": "circular", "manoeuvring": "manoeuvring"}
-#: Outer loops: name → (outer_loop, target_filter).
-LOOPS = {"paper": ("paper", "imm"), "CV": ("filter", "cv"), "CA": ("filter", "ca"), "IMM": ("filter", "imm")}
+#: Outer loops: name → the pointing.
+LOOPS = {"paper": Pointing("paper"), "CV": Pointing("filter", "cv"), "CA": Pointing("filter", "ca"),
+         "IMM": Pointing("filter", "imm")}
 FILTERS = ("CV", "CA", "IMM")
 #: Sizes of the occluders, m (docs/design.md): a square pole 0.15 m wide; a square panel 0.6 m
 #: wide and high, 0.02 m thick.
@@ -108,9 +109,10 @@ def _occluder(kind: str, distance_m: float, camera_m) -> Occluder:
 def hidden_time_s(occluder: Occluder, config: TrackingConfig | None = None) -> float:
     """How long per period the occluder hides the centre of the circle's target from the home camera, s."""
     config = config or TrackingConfig()
-    t = np.arange(_HIDDEN_SAMPLES) * (config.period_s / _HIDDEN_SAMPLES)
+    period_s = config.target.period_s
+    t = np.arange(_HIDDEN_SAMPLES) * (period_s / _HIDDEN_SAMPLES)
     hidden = ~points_visible([occluder], config.home_camera_m, config.path.position(t))
-    return float(hidden.mean() * config.period_s)
+    return float(hidden.mean() * period_s)
 
 
 @functools.lru_cache(maxsize=8)
@@ -169,13 +171,11 @@ class OcclusionStudy(StudyParams):
         """The run of one cell and replicate."""
         _choice("target", target, tuple(TARGETS))
         _choice("loop", loop, tuple(LOOPS))
-        outer_loop, target_filter = LOOPS[loop]
         return TrackingConfig(
-            target="sphere", trajectory=TARGETS[target], mode="active", outer_loop=outer_loop,
-            target_filter=target_filter, occluders=occluders_for(occlusion),
-            start_phase_s=replicate_phase_s(seed, self.period_s), revolutions=self.revolutions,
-            period_s=self.period_s, fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
-            seed=seed)
+            camera=Camera(fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std),
+            target=Target(kind="sphere", trajectory=TARGETS[target], period_s=self.period_s,
+                          start_phase_s=replicate_phase_s(seed, self.period_s), occluders=occluders_for(occlusion)),
+            pointing=LOOPS[loop], revolutions=self.revolutions, seed=seed)
 
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
@@ -197,11 +197,10 @@ def grid(study: OcclusionStudy | None = None, occlusions=None, targets=None, loo
 # ----------------------------------------------------------------------------------------------
 def _names(config: TrackingConfig) -> tuple[str, str, str]:
     """(occlusion, target, loop) names of a config of the study."""
-    occlusion = next((name for name in OCCLUSIONS if occluders_for(name) == config.occluders), None)
-    target = next((name for name, traj in TARGETS.items() if traj == config.trajectory), None)
-    loop = next((name for name, spec in LOOPS.items()
-                 if spec[0] == config.outer_loop and (spec[0] == "paper" or spec[1] == config.target_filter)), None)
-    if occlusion is None or target is None or loop is None or config.mode != "active":
+    occlusion = next((name for name in OCCLUSIONS if occluders_for(name) == config.target.occluders), None)
+    target = next((name for name, traj in TARGETS.items() if traj == config.target.trajectory), None)
+    loop = next((name for name, pointing in LOOPS.items() if pointing == config.pointing), None)
+    if occlusion is None or target is None or loop is None:
         raise ValueError(f"the config {config.label} is not one of the occlusion study's")
     return occlusion, target, loop
 
@@ -255,7 +254,7 @@ def run_metrics(result) -> dict:
     for (s, e), next_start in zip(found, starts[1:]):
         hidden_angle.append(angle[s:e].mean())
         reappear.append(angle[e])
-        lost.append(0.0 if _in_view(f, e, c.width, c.height) else 100.0)
+        lost.append(0.0 if _in_view(f, e, c.camera.width, c.camera.height) else 100.0)
         hits = np.flatnonzero(detected[e:next_start])
         if hits.size:
             k = e + int(hits[0])
@@ -267,7 +266,7 @@ def run_metrics(result) -> dict:
     nees = f["filter_nees"].to_numpy(float)
     return {
         "episodes": len(found),
-        "hidden_s": hidden[first:].sum() / c.fps / ((len(f) - first) / c.frames_per_revolution),
+        "hidden_s": hidden[first:].sum() / c.camera.fps / ((len(f) - first) / c.frames_per_revolution),
         "pointing_error_deg": _mean(angle[measured]),
         "hidden_pointing_deg": _mean(hidden_angle),
         "reappear_error_deg": _mean(reappear),
@@ -429,19 +428,18 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
 def example_view(occlusion: str, phase: float = 0.75, hfov_rad: float | None = None):
     """The home camera's frame (no noise) with the circle's target ``phase`` of a period in, behind
     the occlusion's occluder at its lowest point by default: ``(image, config)``."""
-    from ..kinematics import GimbalKinematics
     from ..simulation import make_renderer
     from ..trajectories import target_pose
 
     config = OcclusionStudy(replicates=2).config(occlusion, "circle", "paper", 0)
-    config = replace(config, start_phase_s=0.0, mode="passive", outer_loop="paper",
-                     **({} if hfov_rad is None else {"hfov_rad": hfov_rad}))
+    config = config.with_(target__start_phase_s=0.0, pointing=Pointing("stabilised"),
+                          **({} if hfov_rad is None else {"camera__hfov_rad": hfov_rad}))
     T_world_cam = np.eye(4)
-    T_world_cam[:3, :3] = GimbalKinematics.default().T_body_cam(np.zeros(3))[:3, :3]
+    T_world_cam[:3, :3] = config.gimbal.kinematics.T_body_cam(np.zeros(3))[:3, :3]
     T_world_cam[:3, 3] = config.home_camera_m
     renderer = make_renderer(config)
     try:
-        image = renderer.render(T_world_cam, target_pose(config.path, phase * config.period_s))
+        image = renderer.render(T_world_cam, target_pose(config.path, phase * config.target.period_s))
     finally:
         renderer.close()
     return image, config

@@ -9,11 +9,12 @@ between cells is paired. Each replicate runs ``revolutions`` periods: the first 
 
 Claims (paper §4.1.1–4.1.2; docs/design.md) are checked with the three-way verdicts of
 :mod:`gimbal_lab.stats`. "Active" is the paper's PI image loop with Ziegler–Nichols gains unless
-``outer_loop`` says otherwise.
+``outer_loop`` says otherwise; "passive" is the stabilised gimbal at its home pose.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..simulation import TrackingConfig
+from ..config import Camera, Estimator, Pointing, Target, TrackingConfig
 from ._params import StudyParams, report_pyplot, verdict_rule, write_report_files
 
 __all__ = [
@@ -46,7 +47,8 @@ DESCRIPTION = "paper §4.1: sphere and ArUco, passive vs active, with and withou
 DISTORTIONS = ("undistorted", "distorted")
 TRAJECTORIES = ("circular", "diagonal")
 MODES = ("passive", "active")
-_DISTORTION_FIELD = {"undistorted": "none", "distorted": "default"}
+#: The camera's lens of each distortion condition.
+_LENS = {"undistorted": "none", "distorted": "default"}
 
 #: The target counts as centred once its detected centre comes within this fraction of the image
 #: width of the image centre (32 px at 640 px).
@@ -65,7 +67,8 @@ class PaperStudy(StudyParams):
     replicates, first_seed, revolutions, period_s, fps, latency_frames, noise_std :
         As every study's (:class:`~gimbal_lab.studies._params.StudyParams`).
     outer_loop : {"paper", "predictive"}
-        What "active" means (the paper's ZN PI image loop by default).
+        What "active" means (the paper's ZN PI image loop by default): the active cells'
+        :class:`~gimbal_lab.config.Pointing` kind.
     aruco_refinement : {"none", "subpix", "contour", "apriltag"}
         The study's corner refinement (sub-pixel).
     """
@@ -77,15 +80,23 @@ class PaperStudy(StudyParams):
 
     def __post_init__(self):
         self._check_replicates()
-        # the rest is validated by TrackingConfig, naming the field
-        self.base_config()
+        if self.outer_loop not in ("paper", "predictive"):
+            raise ValueError(f"outer_loop must be one of ('paper', 'predictive'), got {self.outer_loop!r}")
+        # the rest is validated by the config's parts, naming part and field
+        self.config("aruco", "distorted", "diagonal", "active", self.first_seed)
 
-    def base_config(self, **changes) -> TrackingConfig:
-        """The TrackingConfig every cell starts from."""
-        fields_ = dict(revolutions=self.revolutions, period_s=self.period_s, fps=self.fps,
-                       latency_frames=self.latency_frames, noise_std=self.noise_std, outer_loop=self.outer_loop,
-                       aruco_refinement=self.aruco_refinement)
-        return TrackingConfig(**{**fields_, **changes})
+    def config(self, target: str, distortion: str, trajectory: str, mode: str, seed: int) -> TrackingConfig:
+        """The run of one cell and replicate."""
+        if target not in ("sphere", "aruco"):
+            raise ValueError(f"targets must be 'sphere' or 'aruco', got {target!r}")
+        return TrackingConfig(
+            camera=Camera(lens=_LENS[distortion], fps=self.fps, latency_frames=self.latency_frames,
+                          noise_std=self.noise_std),
+            target=Target(kind=target, trajectory=trajectory, period_s=self.period_s,
+                          start_phase_s=replicate_phase_s(seed, self.period_s)),
+            pointing=Pointing(self.outer_loop if mode == "active" else "stabilised"),
+            estimator=Estimator(aruco_refinement=self.aruco_refinement),
+            revolutions=self.revolutions, seed=seed)
 
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
@@ -100,37 +111,32 @@ def replicate_phase_s(seed: int, period_s: float) -> float:
 def grid(study: PaperStudy | None = None, targets=("sphere", "aruco"), **changes) -> list[TrackingConfig]:
     """Every (cell, replicate) config of the study, cells in the paper's order, replicates inner.
 
-    ``changes`` override TrackingConfig fields of every cell (e.g. ``outer_loop="predictive"``,
+    ``changes`` override the study's parameters for these cells (e.g. ``outer_loop="predictive"``,
     ``aruco_refinement="none"`` for the extensions run beside the study).
     """
-    study = study or PaperStudy()
-    configs = []
+    study = dataclasses.replace(study or PaperStudy(), **changes)
     for target in targets:
         if target not in ("sphere", "aruco"):
             raise ValueError(f"targets must be 'sphere' or 'aruco', got {target!r}")
-        for dist in DISTORTIONS:
-            for traj in TRAJECTORIES:
-                for mode in MODES:
-                    for seed in study.seeds:
-                        configs.append(study.base_config(
-                            target=target, distortion=_DISTORTION_FIELD[dist], trajectory=traj, mode=mode, seed=seed,
-                            start_phase_s=replicate_phase_s(seed, study.period_s), **changes))
-    return configs
+    return [study.config(target, dist, traj, mode, seed)
+            for target in targets for dist in DISTORTIONS for traj in TRAJECTORIES for mode in MODES
+            for seed in study.seeds]
 
 
 # ----------------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------------
 def _identity(c: TrackingConfig) -> dict:
-    return {"target": c.target, "distortion": c.distortion_label, "trajectory": c.trajectory, "mode": c.mode,
-            "outer_loop": c.outer_loop if c.mode == "active" else "none"}
+    return {"target": c.target.kind, "distortion": c.camera.lens_label, "trajectory": c.target.trajectory,
+            "mode": c.pointing.mode, "outer_loop": c.pointing.kind if c.pointing.active else "none"}
 
 
 def _methods(c: TrackingConfig) -> list[tuple[str, str]]:
-    if c.target == "sphere":
-        other = "ellipse" if c.sphere_method == "circle" else "circle"
-        return [(c.sphere_method, ""), (other, "alt_")]
-    return [(f"aruco-{c.aruco_refinement}", "")]
+    method = c.estimator.sphere_method
+    if c.target.kind == "sphere":
+        other = "ellipse" if method == "circle" else "circle"
+        return [(method, ""), (other, "alt_")]
+    return [(f"aruco-{c.estimator.aruco_refinement}", "")]
 
 
 def _time_to_centre(f: pd.DataFrame, threshold_px: float) -> float:
@@ -142,12 +148,12 @@ def _replicate_rows(result) -> list[dict]:
     c = result.config
     f = result.frames
     measured, acquiring = f[f["revolution"] >= 1], f[f["revolution"] == 0]
-    threshold = CENTRED_FRACTION * c.width
+    threshold = CENTRED_FRACTION * c.camera.width
     rows = []
     for method, p in _methods(c):
         det = measured[measured[f"{p}detected"]]
         acq = acquiring[acquiring[f"{p}detected"]]
-        row = {**_identity(c), "method": method, "seed": c.seed, "start_phase_s": c.start_phase_s,
+        row = {**_identity(c), "method": method, "seed": c.seed, "start_phase_s": c.target.start_phase_s,
                "frames": len(measured),
                "detection_rate": float(measured[f"{p}detected"].mean()) if len(measured) else math.nan,
                "mean_abs_error_m": float(det[f"{p}abs_error_m"].mean()) if len(det) else math.nan,
@@ -161,7 +167,7 @@ def _replicate_rows(result) -> list[dict]:
                 (det[f"{p}est_cam_{axis}_m"] - det[f"true_cam_{axis}_m"]).abs().mean())
         row["acq_mean_abs_error_m"] = float(acq[f"{p}abs_error_m"].mean()) if len(acq) else math.nan
         row["acq_detection_rate"] = float(acquiring[f"{p}detected"].mean()) if len(acquiring) else math.nan
-        row["time_to_centre_s"] = _time_to_centre(acquiring, threshold) if c.mode == "active" else math.nan
+        row["time_to_centre_s"] = _time_to_centre(acquiring, threshold) if c.pointing.active else math.nan
         rows.append(row)
     return rows
 
@@ -208,7 +214,7 @@ def frames_table(results) -> pd.DataFrame:
     for r in results:
         f = r.frames.copy()
         ident = {**_identity(r.config), "method": _methods(r.config)[0][0], "seed": r.config.seed,
-                 "start_phase_s": r.config.start_phase_s}
+                 "start_phase_s": r.config.target.start_phase_s}
         for i, (k, v) in enumerate(ident.items()):
             f.insert(i, k, v)
         parts.append(f)
@@ -462,8 +468,8 @@ def write_report(folder, results, study: PaperStudy) -> list[Path]:
                                        (("aruco", "distorted", "diagonal"), "fig14_aruco_xyz")):
         for r in results:
             c = r.config
-            if (c.target, c.distortion_label, c.trajectory, c.seed) == (target, dist, traj, first):
-                save(plotting.study.plot_xyz(r, revolution=1), f"{name}_{c.mode}")
+            if (c.target.kind, c.camera.lens_label, c.target.trajectory, c.seed) == (target, dist, traj, first):
+                save(plotting.study.plot_xyz(r, revolution=1), f"{name}_{c.pointing.mode}")
     save(plotting.study.plot_forest(verdicts).figure, "claims_forest")
     plt.close("all")
     return written
@@ -482,8 +488,8 @@ def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> l
     written = []
     first = study.seeds[0]
     for target in ("sphere", "aruco"):
-        pair = {r.config.mode: r for r in results
-                if (r.config.target, r.config.distortion_label, r.config.trajectory, r.config.seed)
+        pair = {r.config.pointing.mode: r for r in results
+                if (r.config.target.kind, r.config.camera.lens_label, r.config.target.trajectory, r.config.seed)
                 == (target, *CLIP_CELL, first)}
         if set(pair) != {"passive", "active"}:
             continue
@@ -492,7 +498,8 @@ def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> l
             from tqdm.auto import tqdm
 
             frames = tqdm(frames, total=pair["passive"].config.n_frames, desc=f"{target} clip", unit="frame")
-        written.append(write_clip(Path(folder) / "clips" / f"{target}.mp4", frames, fps=pair["passive"].config.fps))
+        written.append(write_clip(Path(folder) / "clips" / f"{target}.mp4", frames,
+                                  fps=pair["passive"].config.camera.fps))
     return written
 
 

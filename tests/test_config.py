@@ -1,0 +1,380 @@
+"""The run's config: each part's own rules, the rules tying two parts (each named once, with both
+parts in its message), nested dicts and TOML tables, the two levels of change, equality and keys."""
+
+import hashlib
+import json
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt
+from gimbal_lab.config import (
+    Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, check_parts,
+)
+from gimbal_lab.control import AxisPlant, PIDGains, RateLoop
+from gimbal_lab.kinematics import GimbalKinematics
+from gimbal_lab.platform import BodyMotion, HoverSway, WaypointFlight
+from gimbal_lab.scene import Occluder
+
+
+def test_the_defaults_are_the_paper_studys_fixed_parameters():
+    c = TrackingConfig()
+    K = c.camera.intrinsics
+    # 60° across 640 px: f = 320 / tan(30°) = 554.2563 px, principal point at the image centre
+    assert math.isclose(K.fx, 320.0 / math.tan(math.radians(30.0)), rel_tol=1e-12) and K.fy == K.fx
+    assert (K.cx, K.cy, K.width, K.height) == (319.5, 239.5, 640, 480)
+    assert c.camera.lens_model is None and (c.camera.fps, c.camera.latency_frames, c.camera.noise_std) == (30, 1, 2)
+    assert c.target.kind == "sphere" and c.target.trajectory == "circular" and c.target.period_s == 2.0
+    assert c.pointing.mount == "stabilised" and not c.pointing.active and c.platform.motion == "static"
+    assert c.n_frames == 120 and c.label == "sphere/undistorted/circular/passive"
+    # 30 mm ahead of and 45 mm below the mount (the DH chain's cos(π/2) leaves ~1e-34 m in y)
+    np.testing.assert_allclose(c.home_camera_m, [0.03, 0.0, 2.0 - 0.045], rtol=0, atol=1e-15)
+
+
+# ----------------------------------------------------------------------------------------------
+# each part's own rules name part.field
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "part, kwargs, message",
+    [
+        (Camera, dict(lens="fisheye"), "camera.lens"),
+        (Camera, dict(lens=3), "camera.lens"),
+        (Camera, dict(lens={"model": "division", "k1": 0.1}), "unknown lens model"),
+        (Camera, dict(fps=-30), "camera.fps"),
+        (Camera, dict(fps=float("inf")), "camera.fps"),
+        (Camera, dict(width=640.5), "camera.width"),
+        (Camera, dict(width=0), "camera.width"),
+        (Camera, dict(height=10**6), "camera.height"),
+        (Camera, dict(hfov_rad=math.radians(185.0)), "camera.hfov_rad"),
+        (Camera, dict(lens=KannalaBrandt(), hfov_rad=math.radians(361.0)), "camera.hfov_rad"),
+        (Camera, dict(latency_frames=0.5), "camera.latency_frames"),
+        (Camera, dict(noise_std=-1), "camera.noise_std"),
+        (Camera, dict(blur="motion"), "camera.blur"),
+        (Camera, dict(n_subframes=0), "camera.n_subframes"),
+        # the camera's own rules that tie its fields
+        (Camera, dict(exposure_s=0.1), "camera.exposure_s"),  # longer than a frame at 30/s
+        (Camera, dict(exposure_s=0.01, latency_frames=0), "camera.latency_frames >= 1"),
+        (Camera, dict(readout_s=0.01), "camera.readout_s > 0 .* needs camera.blur='fast'"),
+        (Camera, dict(readout_s=0.05, blur="fast"), "camera.readout_s"),  # longer than a frame
+        (Camera, dict(lens=KannalaBrandt(), exposure_s=0.01, blur="fast"), "camera.blur='subframes'"),
+        (Camera, dict(calibration=Intrinsics.default(), hfov_rad=1.0), "camera.hfov_rad and camera.calibration"),
+        (Camera, dict(calibration=Intrinsics.default(), hfov_rad=None, width=800), "camera.width=800 differs"),
+        (Gimbal, dict(inner_rate_hz=0.0), "gimbal.inner_rate_hz"),
+        (Gimbal, dict(inner_rate_hz=300.0), "gimbal.inner_rate_hz=300 must be >= 333.333"),
+        (Gimbal, dict(gyro_noise_rad_s_rthz=-1e-3), "gimbal.gyro_noise_rad_s_rthz"),
+        (Gimbal, dict(max_joint_rate_rad_s=0.0), "gimbal.max_joint_rate_rad_s"),
+        (Gimbal, dict(kinematics="default"), "gimbal.kinematics must be a GimbalKinematics"),
+        (Gimbal, dict(plants=(AxisPlant.storm32("yaw"),)), "gimbal.plants must be three"),
+        (Gimbal, dict(rate_gains=(PIDGains(1.0),) * 2 + ({"kp": 1, "kd": 2, "kq": 3},)), "gimbal.rate_gains.2. key"),
+        (Platform, dict(motion="orbit"), "platform.motion"),
+        (Platform, dict(altitude_m=0.0), "platform.altitude_m"),
+        (Platform, dict(motion_phase_s=-1.0), "platform.motion_phase_s"),
+        (Platform, dict(sway=3), "platform.sway must be a HoverSway"),
+        (Platform, dict(motion="flight", altitude_m=4.0), "platform.altitude_m=4 differs from the height platform.flight"),
+        (Target, dict(kind="cube"), "target.kind"),
+        (Target, dict(trajectory="spiral"), "target.trajectory"),
+        (Target, dict(period_s=0.0), "target.period_s"),
+        (Target, dict(start_phase_s=2.0), r"target.start_phase_s must be in \[0, target.period_s"),
+        (Target, dict(sphere_radius_m=0.0), "target.sphere_radius_m"),
+        (Target, dict(marker_length_m=-0.3), "target.marker_length_m"),
+        (Target, dict(occluders=((1, 2, 3),)), "target.occluders"),
+        (Target, dict(occluders=Occluder("pole", (1, 0, 1), (0.1, 0.1, 2))), "target.occluders"),
+        (Pointing, dict(kind="image"), "pointing.kind"),
+        (Pointing, dict(kind="filter", filter="ekf"), "pointing.filter"),
+        (Pointing, dict(kind="paper", filter="cv"), "pointing.filter='cv' applies to pointing.kind 'filter' only"),
+        (Estimator, dict(sphere_method="hough"), "estimator.sphere_method"),
+        (Estimator, dict(lens_strategy="undistorted"), "estimator.lens_strategy"),
+        (Estimator, dict(lens_strategy=True), "estimator.lens_strategy"),
+        (Estimator, dict(aruco_refinement="fine"), "estimator.aruco_refinement"),
+    ],
+)
+def test_a_part_refuses_a_bad_field_naming_it(part, kwargs, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        part(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(revolutions=0), "revolutions"),
+        (dict(revolutions=float("nan")), "revolutions"),
+        (dict(revolutions=True), "revolutions"),
+        (dict(revolutions="2"), "revolutions"),
+        (dict(seed=-1), "seed"),
+        (dict(seed=1.5), "seed"),
+        (dict(camera="default"), "camera must be a Camera"),
+        (dict(pointing=Target()), "pointing must be a Pointing"),
+    ],
+)
+def test_the_runs_own_fields_are_checked(kwargs, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        TrackingConfig(**kwargs)
+
+
+# ----------------------------------------------------------------------------------------------
+# the rules that tie two parts: one function, both parts in every message
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        # the latency must leave a frame to steer: 120 frames in the default run
+        (dict(camera=Camera(latency_frames=120)), r"camera.latency_frames=120 .*revolutions × target.period_s × camera.fps"),
+        (dict(revolutions=0.001), r"at least one frame: revolutions × target.period_s × camera.fps"),
+        (dict(revolutions=1e5, camera=Camera(fps=1000.0)), r"revolutions × target.period_s × camera.fps must be <="),
+        (dict(camera=Camera(fps=2000.0)), "gimbal.inner_rate_hz=1000 must be >= camera.fps=2000"),
+        (dict(estimator=Estimator(lens_strategy="undistort")),
+         "estimator.lens_strategy 'undistort' needs a lens; camera.lens is 'none'"),
+        (dict(estimator=Estimator(lens_strategy="rectify"), camera=Camera(lens=BrownConrady())),
+         "estimator.lens_strategy 'rectify' needs a lens; camera.lens is BrownConrady"),
+        (dict(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+              camera=Camera(exposure_s=1 / 60, blur="fast")), "target.occluders need camera.blur 'subframes'"),
+        (dict(pointing=Pointing("predictive"), platform=Platform(motion="hover")),
+         "pointing 'predictive' assumes a still platform; platform.motion is 'hover'"),
+        (dict(pointing=Pointing("filter"), platform=Platform(motion="flight")),
+         "pointing 'filter' assumes a still platform; platform.motion is 'flight'"),
+    ],
+)
+def test_a_rule_tying_two_parts_names_both(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        TrackingConfig(**kwargs)
+
+
+def test_the_rules_tying_parts_accept_what_they_allow():
+    """The edge each rule draws: the last frame a latency may take, an inner rate equal to the frame
+    rate, a known lens, occluders with sub-frame blur, the paper's loop on a moving body."""
+    TrackingConfig(camera=Camera(latency_frames=119))
+    TrackingConfig(camera=Camera(fps=1000.0), revolutions=0.01)
+    TrackingConfig(estimator=Estimator(lens_strategy="undistort"), camera=Camera(lens="default"))
+    TrackingConfig(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+                   camera=Camera(exposure_s=1 / 60, n_subframes=4))
+    TrackingConfig(pointing=Pointing("paper"), platform=Platform(motion="flight"))
+    check_parts(TrackingConfig())  # callable on its own, as the config's constructor calls it
+
+
+def test_the_old_passive_mount_rule_cannot_be_broken():
+    """The flat config refused passive_mount="fixed" with mode="active"; a pointing is one kind, so
+    "fixed and active" cannot be written."""
+    kinds = {kind: (Pointing(kind).mount, Pointing(kind).mode) for kind in
+             ("fixed", "stabilised", "paper", "predictive", "filter")}
+    assert kinds == {"fixed": ("fixed", "passive"), "stabilised": ("stabilised", "passive"),
+                     "paper": ("active", "active"), "predictive": ("active", "active"),
+                     "filter": ("active", "active")}
+    assert Pointing("filter").filter == "imm" and Pointing("stabilised").filter is None
+
+
+# ----------------------------------------------------------------------------------------------
+# a calibrated camera
+# ----------------------------------------------------------------------------------------------
+def test_a_calibrated_camera_uses_its_intrinsics_and_size():
+    K = Intrinsics(900.0, 905.0, 650.2, 355.7, 1280, 720)
+    camera = Camera(calibration=K, lens=BrownConrady(k1=-0.2))
+    assert camera.intrinsics is K and (camera.width, camera.height) == (1280, 720) and camera.hfov_rad is None
+    assert math.isclose(camera.horizontal_field_rad, 2 * math.atan(640 / 900.0), rel_tol=1e-15)
+    # a fisheye's field by the equidistant rule, θ = r/f: half the width at 200 px is 640/200 rad off the axis
+    fisheye = Camera(calibration=Intrinsics(200.0, 200.0, 639.5, 359.5, 1280, 720), lens=KannalaBrandt())
+    assert math.isclose(fisheye.horizontal_field_rad, 1280 / 200.0)
+    config = TrackingConfig(camera=camera)
+    assert TrackingConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    # a field-of-view camera's 60° and 640 × 480 would contradict the calibration: they go with it
+    with pytest.raises(ValueError, match="camera.hfov_rad and camera.calibration"):
+        Camera().replace(calibration=K)
+    with pytest.raises(ValueError, match="camera.width=640 differs from camera.calibration.width=1280"):
+        Camera().replace(calibration=K, hfov_rad=None)
+    assert Camera().replace(calibration=K, hfov_rad=None, width=None, height=None) == Camera(calibration=K)
+
+
+# ----------------------------------------------------------------------------------------------
+# what the parts build
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("motion", ["static", "hover", "vibration", "flight"])
+def test_the_platform_builds_the_body_the_flat_config_built(motion):
+    """Oracle: BodyMotion's own constructors as the flat config called them (seed stream 1, the
+    replicate's phase as the time offset, a still body at the platform's height)."""
+    import dataclasses
+
+    seed, phase = 7, 3.25
+    body_seed = int(np.random.SeedSequence([seed, 1]).generate_state(1)[0])
+    altitude = 2.0 if motion == "flight" else 3.5
+    platform = Platform(motion=motion, motion_phase_s=phase, altitude_m=altitude)
+    expected = {
+        "static": BodyMotion.static((0.0, 0.0, altitude)),
+        "hover": dataclasses.replace(BodyMotion.hover(body_seed, position_m=(0.0, 0.0, altitude)), time_offset_s=phase),
+        "vibration": dataclasses.replace(BodyMotion.hover(body_seed, vibration=True, position_m=(0.0, 0.0, altitude)),
+                                         time_offset_s=phase),
+        "flight": dataclasses.replace(BodyMotion.flying(body_seed), time_offset_s=phase),
+    }[motion]
+    t = np.linspace(0.0, 3.0, 301)
+    np.testing.assert_array_equal(platform.body(seed).T_world_body(t), expected.T_world_body(t))
+    np.testing.assert_array_equal(platform.body(seed).angular_rate_body(t), expected.angular_rate_body(t))
+
+
+def test_a_platforms_own_motion_parameters_reach_the_body():
+    calm = Platform(motion="hover", sway=HoverSway(roll_pitch_rms_rad=0.0, yaw_rms_rad=0.0, position_rms_m=0.0))
+    body = calm.body(3)
+    t = np.linspace(0.0, 2.0, 50)
+    np.testing.assert_allclose(body.attitude(t)[0], 0.0, atol=0.0)
+    higher = WaypointFlight(start_m=(0.0, -1.5, 3.0), end_m=(0.0, 1.5, 3.0))
+    flying = Platform(motion="flight", flight=higher, altitude_m=3.0).body(3)
+    assert abs(flying.position(0.0)[0, 2] - 3.0) < 0.2  # at 3 m, within the sway
+
+
+def test_the_gimbal_hands_its_axes_and_gains_to_the_mount():
+    plants = tuple(AxisPlant.storm32(a, torque_limit_Nm=0.03) for a in ("yaw", "roll", "pitch"))
+    gains = (PIDGains(0.01), PIDGains(0.02, 0.1), PIDGains(0.03, 0.0, 1e-5))
+    mount = Gimbal(plants=plants, rate_gains=gains).mount(BodyMotion.static(), "active", 10, seed=0)
+    assert [a.plant for a in mount.axes] == list(plants) and [loop.gains for loop in mount.rate_loops] == list(gains)
+    default = Gimbal().mount(BodyMotion.static(), "active", 10, seed=0)
+    zn = RateLoop(AxisPlant.storm32("pitch"), dt_s=1e-3).gains  # Ziegler–Nichols from the plant
+    assert default.rate_loops[2].gains == zn and default.plants[2] == AxisPlant.storm32("pitch")
+
+
+def test_renderers_are_shared_by_what_they_draw_only():
+    base = TrackingConfig()
+    assert base.renderer_key == base.with_(seed=4, pointing__kind="paper", target__start_phase_s=1.0).renderer_key
+    for changed in (base.with_(target__sphere_radius_m=0.2), base.with_(camera__lens="default"),
+                    base.with_(target__kind="aruco"), base.with_(camera__hfov_rad=1.0)):
+        assert changed.renderer_key != base.renderer_key
+
+
+# ----------------------------------------------------------------------------------------------
+# changes at two levels
+# ----------------------------------------------------------------------------------------------
+def test_with_is_replace_of_a_part():
+    c = TrackingConfig()
+    assert c.with_(camera__fps=60, seed=3) == c.replace(camera=c.camera.replace(fps=60), seed=3)
+    assert c.with_(camera__fps=60).camera.fps == 60 and c.camera.fps == 30  # a copy
+    deep = c.with_(platform__motion="hover", platform__sway__yaw_rms_rad=0.01)
+    assert deep.platform.sway == HoverSway(yaw_rms_rad=0.01) and deep.platform.motion == "hover"
+    assert c.replace(camera__noise_std=0.0).camera.noise_std == 0.0  # replace takes the same spelling
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        (dict(colour="red"), "TrackingConfig has no field.*colour"),
+        (dict(camera__colour="red"), "camera has no field.*colour"),
+        (dict(lens__k1=0.1), "TrackingConfig has no field 'lens'"),
+        (dict(camera=Camera(), camera__fps=60), "both replaced and changed"),
+        (dict(camera__fps__x=1), "camera.fps is not a part"),
+        (dict(camera__fps=-1), "camera.fps must be"),
+    ],
+)
+def test_a_change_names_what_it_cannot_change(changes, message):
+    with pytest.raises(ValueError, match=message):
+        TrackingConfig().with_(**changes)
+
+
+# ----------------------------------------------------------------------------------------------
+# dicts, TOML tables and keys
+# ----------------------------------------------------------------------------------------------
+_VARIED = [
+    TrackingConfig(),
+    TrackingConfig(camera=Camera(lens=BrownConrady(k1=-0.1)), target=Target(start_phase_s=1.25), seed=3),
+    TrackingConfig(camera=Camera(lens=KannalaBrandt(k1=0.01), hfov_rad=math.radians(150.0)),
+                   estimator=Estimator(lens_strategy="rectify"), target=Target(trajectory="cone")),
+    TrackingConfig(platform=Platform(motion="vibration", sway=HoverSway(attitude_hz=2.0)),
+                   camera=Camera(exposure_s=1 / 60, blur="fast", readout_s=0.02),
+                   gimbal=Gimbal(gyro_noise_rad_s_rthz=1e-4, rate_gains=(PIDGains(0.01),) * 3)),
+    TrackingConfig(target=Target(trajectory="manoeuvring", occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+                   pointing=Pointing("filter", "ca")),
+    TrackingConfig(gimbal=Gimbal(kinematics=GimbalKinematics(0.05, 0.02, ((-1, 1), (-0.5, 0.5), (-2, 1))),
+                                 plants=tuple(AxisPlant.storm32(a) for a in ("yaw", "roll", "pitch")))),
+]
+
+
+@pytest.mark.parametrize("config", _VARIED, ids=lambda c: c.label)
+def test_a_config_round_trips_through_plain_dicts(config):
+    data = json.loads(json.dumps(config.to_dict()))  # plain JSON values only
+    again = TrackingConfig.from_dict(data)
+    assert again == config and hash(again) == hash(config) and again.key == config.key
+    assert set(data) == {"camera", "gimbal", "platform", "target", "pointing", "estimator", "revolutions", "seed"}
+    assert "None" not in repr(data)  # no null: every table can be written as TOML
+
+
+def test_a_config_is_built_from_toml_tables():
+    text = """
+revolutions = 1.5
+seed = 4
+
+[camera]
+fps = 60.0
+lens = { model = "brown_conrady", k1 = -0.1 }
+
+[platform]
+motion = "hover"
+
+[platform.sway]
+yaw_rms_rad = 0.01
+
+[target]
+kind = "aruco"
+occluders = [{ name = "pole", centre_m = [1.0, 0.0, 1.0], size_m = [0.15, 0.15, 2.0] }]
+
+[pointing]
+kind = "paper"
+"""
+    config = TrackingConfig.from_dict(tomllib.loads(text))
+    expected = TrackingConfig(camera=Camera(fps=60.0, lens=BrownConrady(k1=-0.1)),
+                              platform=Platform(motion="hover", sway=HoverSway(yaw_rms_rad=0.01)),
+                              target=Target(kind="aruco", occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
+                              pointing=Pointing("paper"), revolutions=1.5, seed=4)
+    assert config == expected
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"colour": "red"}, "unknown TrackingConfig key.*colour"),
+        ({"camera": {"fsp": 60}}, r"unknown camera key\(s\): fsp"),
+        ({"platform": {"sway": {"yaw_rms_deg": 1}}}, r"unknown platform.sway key\(s\): yaw_rms_deg"),
+        ({"target": "sphere"}, "target must be a Target"),
+        ({"gimbal": {"kinematics": {"drop_m": 0.1}}}, r"unknown gimbal.kinematics key\(s\): drop_m"),
+        ({"camera": {"lens": {"model": "kannala_brandt", "p1": 0.1}}}, r"camera.lens \(kannala_brandt\) key.*p1"),
+        ({"platform": {"sway": {"damping": -1}}}, "platform.sway: damping must be > 0"),
+        ({"camera": {"calibration": {"fx": 0.0, "fy": 1.0, "cx": 0.0, "cy": 0.0, "width": 64, "height": 48}}},
+         "camera.calibration: fx must be > 0"),
+    ],
+)
+def test_a_dict_with_unknown_keys_names_part_and_key(data, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        TrackingConfig.from_dict(data)
+
+
+#: What the flat config of before the parts wrote into a results store's sidecar for
+#: TrackingConfig(mode="active", distortion="default") (its to_dict at commit 3b6ce23), and its key.
+_OLD_FLAT = {
+    "altitude_m": 2.0, "aruco_refinement": "subpix", "blur": "subframes", "distortion": "default", "exposure_s": 0.0,
+    "fps": 30.0, "gyro_noise_rad_s_rthz": 0.0, "height": 480, "hfov_rad": 1.0471975511965976,
+    "inner_rate_hz": 1000.0, "latency_frames": 1, "lens_strategy": "ignore", "marker_length_m": 0.3,
+    "mode": "active", "motion": "static", "motion_phase_s": 0.0, "n_subframes": 1, "noise_std": 2.0,
+    "occluders": [], "outer_loop": "paper", "passive_mount": "stabilised", "period_s": 2.0, "readout_s": 0.0,
+    "revolutions": 2.0, "seed": 0, "sphere_method": "circle", "sphere_radius_m": 0.1, "start_phase_s": 0.0,
+    "target": "sphere", "target_filter": "imm", "trajectory": "circular", "width": 640,
+}
+_OLD_KEY = "c8f986226a0bc786"
+
+
+def test_an_old_flat_sidecar_is_not_a_config_and_its_key_is_never_served(monkeypatch):
+    import gimbal_lab.config as config_module
+
+    assert hashlib.sha256(json.dumps(_OLD_FLAT, sort_keys=True).encode()).hexdigest()[:16] == _OLD_KEY
+    with pytest.raises(ValueError, match="unknown TrackingConfig key.*distortion.*mode"):
+        TrackingConfig.from_dict(_OLD_FLAT)
+    same_run = TrackingConfig(camera=Camera(lens="default"), pointing=Pointing("paper"))
+    assert same_run.key != _OLD_KEY
+    # the schema enters the key: the same fields under another schema version hash differently
+    key = same_run.key
+    monkeypatch.setattr(config_module, "SCHEMA", "gimbal-lab/tracking-config/3")
+    assert same_run.key != key
+
+
+def test_equal_configs_are_equal_by_value_and_distinct_ones_are_not():
+    a, b = TrackingConfig(), TrackingConfig(gimbal=Gimbal(kinematics=GimbalKinematics()))
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1  # GimbalKinematics compares by identity; Gimbal by value
+    narrower = GimbalKinematics(joint_limits_rad=((-1, 1), (-0.5, 0.5), (-1, 0.5)))
+    others = [a.with_(seed=1), a.with_(camera__noise_std=1.0), a.replace(gimbal=Gimbal(kinematics=narrower)),
+              a.with_(platform__sway__damping=0.5), a.with_(pointing__kind="fixed")]
+    assert len({a, *others}) == 1 + len(others)
+    assert len({a.key, *(c.key for c in others)}) == 1 + len(others)
