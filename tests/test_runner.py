@@ -313,15 +313,15 @@ def test_a_table_that_does_not_fit_its_config_is_never_served(tmp_path, monkeypa
 
 def test_frame_times_within_rounding_are_accepted():
     """The tolerance on t_s admits k·(1/fps) (two roundings) besides k/fps, and nothing near a frame."""
-    c = cfg(seed=0, fps=30.0)
+    c = cfg(seed=0, camera__fps=30.0)
     frames = pd.DataFrame({name: np.zeros(c.n_frames, dtype) for name, dtype in runner.frame_schema().items()})
     k = np.arange(c.n_frames)
-    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps), c)
-    runner.check_frames(frames.assign(frame=k, t_s=k * (1.0 / c.fps)), c)
-    last = (c.n_frames - 1) / c.fps
-    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), np.spacing(last)]), c)
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps), c)
+    runner.check_frames(frames.assign(frame=k, t_s=k * (1.0 / c.camera.fps)), c)
+    last = (c.n_frames - 1) / c.camera.fps
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps + np.r_[np.zeros(c.n_frames - 1), np.spacing(last)]), c)
     with pytest.raises(ValueError, match="frame 5 is at t_s"):
-        runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), 1e-9]), c)
+        runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps + np.r_[np.zeros(c.n_frames - 1), 1e-9]), c)
 
 
 def test_the_frame_schema_is_the_simulations(reference):
