@@ -117,6 +117,19 @@ def _can_write(folder: Path) -> bool:
     return os.access(folder, os.W_OK | os.X_OK, effective_ids=effective)
 
 
+def _folder_problem(path: Path) -> tuple[Path, str] | None:
+    """What keeps ``path`` from being a folder this process writes in (or creates): the culprit
+    (``path`` or the deepest part of it that exists) and a reason, or None."""
+    probe = Path(os.path.abspath(path))
+    while not (probe.exists() or probe.is_symlink()) and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        return probe, "a file, not a folder" if probe.is_file() else "a device or special file, not a folder"
+    if not _can_write(probe):
+        return probe, "not writable (permission denied or a read-only file system)"
+    return None
+
+
 def check_writable_folder(path, what: str = "output folder") -> Path:
     """Check that ``path`` is a folder this process can write in, or one it can create.
 
@@ -126,19 +139,13 @@ def check_writable_folder(path, what: str = "output folder") -> Path:
     path = Path(os.fspath(path))
     if not str(path).strip():
         raise OutputError(f"{what} must name a folder, got an empty string")
-    target = probe = Path(os.path.abspath(path))
-    while not (probe.exists() or probe.is_symlink()) and probe.parent != probe:
-        probe = probe.parent
-    if not probe.is_dir():
-        kind = "a file" if probe.is_file() else "a device or special file"
-        if probe == target:
-            raise OutputError(f"{what} {path} is {kind}, not a folder", probe)
-        raise OutputError(f"{what} {path} cannot be made: {probe} is {kind}, not a folder", probe)
-    if not _can_write(probe):
-        where = "" if probe == target else f": its folder {probe} cannot be written"
-        raise OutputError(f"{what} {path} is not writable{where} (permission denied or a read-only file system)",
-                          probe)
-    return path
+    problem = _folder_problem(path)
+    if problem is None:
+        return path
+    culprit, reason = problem
+    if culprit == Path(os.path.abspath(path)):
+        raise OutputError(f"{what} {path} is {reason}", culprit)
+    raise OutputError(f"{what} {path} cannot be made: {culprit} is {reason}", culprit)
 
 
 def check_new_file(path, what: str = "output file", suffixes=None) -> Path:
@@ -153,7 +160,10 @@ def check_new_file(path, what: str = "output file", suffixes=None) -> Path:
         raise OutputError(f"{what} {path} is a folder; give a file name", path)
     if path.exists() and not path.is_file():
         raise OutputError(f"{what} {path} is not a regular file; give a file name", path)
-    check_writable_folder(path.parent if str(path.parent) else Path("."), f"the folder of {what} {path}")
+    problem = _folder_problem(path.parent)
+    if problem is not None:
+        culprit, reason = problem
+        raise OutputError(f"{what} {path} cannot be written: {culprit} is {reason}", culprit)
     return path
 
 

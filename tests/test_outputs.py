@@ -282,7 +282,7 @@ def test_output_paths_are_checked_in_one_line(tmp_path):
         (lambda: check_writable_folder("/dev/null", "--out"), "--out /dev/null is a device or special file, not a folder"),
         (lambda: check_writable_folder(a_file / "sub", "--out"), f"--out {a_file / 'sub'} cannot be made: {a_file} is a file"),
         (lambda: check_new_file(tmp_path, "--out"), f"--out {tmp_path} is a folder; give a file name"),
-        (lambda: check_new_file(a_file / "clip.mp4", "--out"), f"{a_file} is a file, not a folder"),
+        (lambda: check_new_file(a_file / "clip.mp4", "--out"), f"cannot be written: {a_file} is a file, not a folder"),
         (lambda: check_new_file(tmp_path / "clip.avi", "--out", suffixes=(".mp4", ".gif")), "must end in .mp4 or .gif"),
         (lambda: check_new_file("/dev/null", "--out"), "/dev/null is not a regular file"),
     ]
@@ -302,11 +302,14 @@ def test_an_unwritable_folder_is_named(tmp_path):
         locked = shared / "locked"
         locked.mkdir()
         with unwritable(locked):
-            with pytest.raises(OutputError, match=f"--out {locked / 'paper'} is not writable: its folder {locked} "
-                                                  "cannot be written"):
+            with pytest.raises(OutputError, match=f"--out {locked / 'paper'} cannot be made: {locked} is not writable "
+                                                  r"\(permission denied or a read-only file system\)"):
                 check_writable_folder(locked / "paper", "--out")
             with pytest.raises(OutputError, match=f"--out {locked} is not writable"):
                 check_writable_folder(locked, "--out")
+            with pytest.raises(OutputError, match=f"--out {locked / 'c.mp4'} cannot be written: {locked} is not "
+                                                  "writable"):
+                check_new_file(locked / "c.mp4", "--out")
     finally:
         import shutil
 

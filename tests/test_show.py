@@ -181,10 +181,20 @@ def test_show_command_writes_a_clip_and_names_bad_arguments(tmp_path):
     toml = tmp_path / "tiny.toml"
     toml.write_text("[paper]\nreplicates = 2\nperiod_s = 0.3\n")  # 2 revolutions of 9 frames
     cmd = [sys.executable, "-m", "gimbal_lab.cli", "show"]
-    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--out", str(tmp_path / "c.gif")],
+    # without --out: an H.264 MP4 under results/show/, named after the cell, and the last line says where
+    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", "store"], cwd=tmp_path,
                         capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0, ok.stderr
+    clip = tmp_path / "results" / "show" / "sphere_default_circular_seed1.mp4"
+    assert ok.stdout.strip().splitlines()[-1] == (f"wrote results/show/sphere_default_circular_seed1.mp4 "
+                                                  f"({clip.stat().st_size / 1e6:.1f} MB, H.264 MP4, plays in a browser)")
+    info = probe_video(clip)
+    assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", 18)
+    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", str(tmp_path / "store"), "--out",
+                               str(tmp_path / "c.gif")], capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr
     assert "wrote" in ok.stdout and (tmp_path / "c.gif").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.gif", "results", "store", "tiny.toml"]
     for args, message in ((["--out", "c.avi"], "--out c.avi must end in .mp4 or .gif"),
                           (["--every", "0"], "argument --every: must be an integer >= 1, got '0'"),
                           (["--config", str(toml), "--seed", "5"], "seed must be one of the study's replicates"),
