@@ -87,6 +87,8 @@ def _calibrate_command(args, parser) -> int:
                               args.dictionary, args.step, progress=not args.no_progress)
     except (FileNotFoundError, ValueError) as exc:
         parser.error(str(exc))
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"interrupted: no calibration written ({args.out} is as it was)") from None
     with atomic_path(args.out) as tmp:
         rw.save_calibration(tmp, result)
     cam = result.intrinsics

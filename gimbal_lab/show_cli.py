@@ -53,11 +53,14 @@ def _show_command(args, parser) -> int:
         if args.seed not in study.seeds:
             raise ValueError(f"seed must be one of the study's replicates {study.seeds[0]}..{study.seeds[-1]}, "
                              f"got {args.seed!r}")
-        check_new_file(out, "the clip", suffixes=(".mp4", ".gif"))
         path = show(args.target, args.distortion, args.trajectory, args.seed, out, study=study, store=args.store,
                     every=args.every)
     except (ValueError, FileNotFoundError) as exc:  # OutputError is a ValueError
         parser.error(str(exc))
+    except KeyboardInterrupt as exc:
+        if type(exc) is KeyboardInterrupt:  # a RunInterrupted says what is kept itself
+            raise KeyboardInterrupt(f"interrupted: no clip written ({out} is as it was)") from None
+        raise
     kind = "H.264 MP4, plays in a browser" if path.suffix.lower() == ".mp4" else "GIF"
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, {kind})")
     return 0

@@ -131,7 +131,12 @@ def test_bad_output_paths_are_refused_before_any_work(capsys, tmp_path, monkeypa
     status, _, err = call(["show", "--out", "clip.mp4"], capsys)
     assert status == 2
     assert_one_line(err, "--out clip.mp4 is a folder; give a file name")
-    assert sorted(os.listdir(tmp_path)) == ["adir", "afile", "clip.mp4", "tiny.toml"]  # no store, no log
+    Path("results").write_text("not a folder")  # where show's clip goes without --out
+    status, _, err = call(["show"], capsys)
+    assert status == 2
+    assert_one_line(err, "gimbal-lab show: error: the clip results/show/sphere_default_circular_seed0.mp4 cannot be "
+                         f"written: {tmp_path}/results is a file, not a folder")
+    assert sorted(os.listdir(tmp_path)) == ["adir", "afile", "clip.mp4", "results", "tiny.toml"]  # no store, no log
 
 
 @pytest.mark.parametrize("foreign", ["paper/my_notes.txt", "paper/figures/extra.png", "paper/thesis.tex"])
@@ -300,18 +305,23 @@ def huge_png(path: Path, width: int, height: int) -> Path:
     return path
 
 
-@pytest.mark.parametrize("width, height, message", [
-    (20000, 20000, "has more than 179 megapixels, more than the 40 megapixels gimbal-lab reads"),
-    (8000, 6000, "is 8000x6000 px (48 megapixels), more than the 40 megapixels gimbal-lab reads"),
+@pytest.mark.parametrize("width, height, in_folder, message", [
+    (20000, 20000, False, "has more than 179 megapixels, more than the 40 megapixels gimbal-lab reads"),
+    (20000, 20000, True, "has more than 179 megapixels, more than the 40 megapixels gimbal-lab reads"),
+    (8000, 6000, False, "is 8000x6000 px (48 megapixels), more than the 40 megapixels gimbal-lab reads"),
 ])
-def test_a_huge_image_is_refused_before_it_is_decoded(width, height, message, tmp_path):
-    """calibrate on one huge image: one line, exit 2; for 20000 x 20000 the process never holds the
-    image (its peak memory stays below the decoded colour image, 3 bytes a pixel: 1.2 GB)."""
-    image = huge_png(tmp_path / "huge.png", width, height)
+def test_a_huge_image_is_refused_before_it_is_decoded(width, height, in_folder, message, tmp_path):
+    """calibrate on one huge image, alone or in a folder: one line, exit 2; for 20000 x 20000 the
+    process never holds the image (its peak memory stays below the decoded colour image, 3 bytes a
+    pixel: 1.2 GB)."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    image = huge_png(folder / "huge.png", width, height)
+    source = folder if in_folder else image
     code = ("import resource, sys\nfrom gimbal_lab import cli\ntry:\n    status = cli.main(sys.argv[1:])\n"
             "except SystemExit as exc:\n    status = exc.code\n"
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(status)")
-    done = subprocess.run([sys.executable, "-c", code, "calibrate", str(image), "--out", str(tmp_path / "cam.yaml"),
+    done = subprocess.run([sys.executable, "-c", code, "calibrate", str(source), "--out", str(tmp_path / "cam.yaml"),
                            "--no-progress"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert_one_line(done.stderr, f"gimbal-lab calibrate: error: {str(image)!r} " if width == 20000 else
@@ -320,3 +330,33 @@ def test_a_huge_image_is_refused_before_it_is_decoded(width, height, message, tm
     if width * height > 10 * 40_000_000:  # far above the interpreter's own 0.1-0.3 GB
         assert peak_bytes < 3 * width * height
     assert not (tmp_path / "cam.yaml").exists()
+
+
+def test_ctrl_c_in_show_and_calibrate_says_nothing_was_written(capsys, tmp_path, monkeypatch):
+    from gimbal_lab import realworld, show
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(show, "show", ctrl_c)
+    status, _, err = call(["show", "--out", "c.mp4"], capsys)
+    assert status == 130
+    assert_one_line(err, "gimbal-lab show: interrupted: no clip written (c.mp4 is as it was)")
+    Path("boards").mkdir()
+    Path("cam.yaml").write_text("the earlier calibration")
+    monkeypatch.setattr(realworld, "open_frames", lambda source: [])
+    monkeypatch.setattr(realworld, "calibrate", ctrl_c)
+    status, _, err = call(["calibrate", "boards", "--out", "cam.yaml"], capsys)
+    assert status == 130
+    assert_one_line(err, "gimbal-lab calibrate: interrupted: no calibration written (cam.yaml is as it was)")
+    assert Path("cam.yaml").read_text() == "the earlier calibration"
+
+
+def test_show_checks_its_clip_before_the_runs(tmp_path, no_runs):
+    from gimbal_lab.outputs import OutputError
+    from gimbal_lab.show import show
+
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(OutputError, match=f"the clip {tmp_path}/afile/c.mp4 cannot be written: {tmp_path}/afile is a file"):
+        show(out=tmp_path / "afile" / "c.mp4", progress=False)

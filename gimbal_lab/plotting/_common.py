@@ -17,22 +17,16 @@ def results_dir(sub: str = "") -> Path:
 class SavedPath(type(Path())):
     """A path :func:`save_figure` wrote; a notebook shows it as the plain path, not ``PosixPath('...')``."""
 
-    def __repr__(self) -> str:
+    def __repr__(self) -> str:  # IPython's display uses it too
         return str(self)
-
-    def _repr_pretty_(self, printer, cycle) -> None:  # IPython's display
-        printer.text(str(self))
 
 
 class SavedPaths(list):
     """The paths :func:`save_figure` wrote; a notebook shows them one per line, not as a list of
     ``PosixPath('...')``."""
 
-    def __repr__(self) -> str:
+    def __repr__(self) -> str:  # IPython's display uses it too
         return "\n".join(str(p) for p in self)
-
-    def _repr_pretty_(self, printer, cycle) -> None:  # IPython's display
-        printer.text(repr(self))
 
 
 def save_figure(fig, name: str, out_dir: str | os.PathLike | None = None, dpi: int = 120, formats=None):
