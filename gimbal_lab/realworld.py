@@ -868,10 +868,28 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
 
 
 def write_video(path, frames, fps: float = 30.0) -> Path:
-    """Write RGB frames to an MP4 (H.264, :func:`gimbal_lab.video.write_video`); returns the path."""
-    from .video import write_video as _write
+    """Write RGB frames to an MP4 as a camera recording stand-in (``cv2.VideoWriter``, codec
+    ``mp4v``, MPEG-4 Part 2); returns the path.
 
-    return _write(path, frames, fps=fps)
+    This is test input, part of the photo-like effects: notebook 12's measured claims (e.g. every
+    marker frame read too far) were made on it, and H.264 moves a far marker's edges differently
+    (one frame of 48, at 1.9 m, then reads 0.4–1.0 % short). Browsers do not play MPEG-4 Part 2: clips meant to
+    be watched go through :func:`gimbal_lab.video.write_video` (H.264).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = None
+    try:
+        for rgb in frames:
+            if writer is None:
+                writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (rgb.shape[1], rgb.shape[0]))
+                if not writer.isOpened():
+                    raise RuntimeError(f"cannot write {str(path)!r} (codec mp4v unavailable)")
+            writer.write(np.ascontiguousarray(rgb[..., ::-1]))
+    finally:
+        if writer is not None:
+            writer.release()
+    return path
 
 
 def board_views(camera: PlanarTargetCamera, texture: np.ndarray, px_per_m: float, board_size_m, n_views: int,

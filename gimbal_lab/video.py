@@ -1,9 +1,9 @@
 """MP4 clips a browser plays: H.264 video in 4:2:0 (``yuv420p``), encoded by PyAV's libx264.
 
 OpenCV's own ``mp4v`` writer makes MPEG-4 Part 2 video, which browsers refuse (Chromium: "no
-supported streams"). Every MP4 the lab writes (``gimbal-lab show``, the paper study's clips,
-``gimbal-lab track``, :func:`gimbal_lab.realworld.write_video`) goes through :class:`VideoWriter`:
-H.264 High profile, constant quality (``crf``), 4:2:0 chroma, the index at the front of the file
+supported streams"). Every clip the lab writes to be watched (``gimbal-lab show``, the paper
+study's clips, ``gimbal-lab track``) goes through :class:`VideoWriter` (the camera-recording
+stand-in :func:`gimbal_lab.realworld.write_video` stays MPEG-4 Part 2, as test input): H.264 High profile, constant quality (``crf``), 4:2:0 chroma, the index at the front of the file
 (``+faststart``, so a browser starts playing before it has the whole file). H.264 in 4:2:0 needs
 an even width and height: a frame with an odd side is padded by repeating its last row or column.
 
