@@ -409,10 +409,11 @@ def sphere_photo(
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
-#: The largest frame :func:`open_frames` gives, in pixels: 40 megapixels (a 7,300 × 5,500 photo,
-#: more than any camera a drone carries for tracking records). A larger image or video is refused
+#: The largest frame :func:`open_frames` gives, in pixels: 40 megapixels (a 7,300 × 5,500 photo; a
+#: 4K video frame is 8.3). A larger image or video is refused
 #: from its header, before a pixel is decoded: calibrating one 20,000 × 20,000 image (400
-#: megapixels) took 21.5 GB, about 54 bytes per pixel, so the limit keeps a frame near 2 GB.
+#: megapixels) took 21.5 GB, about 54 bytes per pixel: at that rate a 40-megapixel frame takes about
+#: 2 GB (extrapolated, not measured).
 MAX_FRAME_PIXELS = 40_000_000
 
 
