@@ -98,15 +98,33 @@ def remove_leftovers(folder: Path) -> None:
 
 @contextlib.contextmanager
 def deferred_interrupts():
-    """Hold SIGINT back (in the main thread) until the block ends: a Ctrl-C lands after it."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+    """Hold SIGINT back until the block ends: a Ctrl-C that arrives inside it lands after it.
+
+    Python runs signal handlers in the main thread whichever thread the kernel delivered the signal
+    to, so the block swaps the main thread's SIGINT handler for one that only notes the signal, and
+    calls the previous handler (``KeyboardInterrupt`` by default) once the block is done. Blocking
+    the signal with ``pthread_sigmask`` would not do: the mask is per thread, and any other thread
+    of the process (a progress bar's monitor, the store's claim refresher) would take the signal.
+    Outside the main thread, where handlers cannot be set, the block runs unguarded.
+    """
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    caught = []
+
+    def note(signum, frame):
+        caught.append(frame)
+
+    previous = signal.signal(signal.SIGINT, note)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            if callable(previous):
+                previous(signal.SIGINT, caught[0])
+            elif previous == signal.SIG_DFL:
+                raise KeyboardInterrupt
 
 
 # ----------------------------------------------------------------------------------------------
