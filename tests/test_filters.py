@@ -14,6 +14,7 @@ Consistency (Bar-Shalom et al. 2001, §5.4): over 50 seeded runs, the run-averag
 each time step should lie in the two-sided 95 % interval of χ²(dof·50)/50. The steps of one run
 are correlated, so the share of steps inside is not binomial; the tests ask for at least 85 % of
 the steps (95 % expected) and for the mean over steps to lie inside the interval.
+Draws go through Cholesky factors (``_gaussian``), so a seed gives the same sample on every CPU.
 
 The measurement noise of every test follows the detector's geometry: along the line of sight
 from the camera at (0, 0, 2) m, σ = 2 cm · (d / 3 m)²; across it, σ = 3 mm · (d / 3 m).
@@ -44,6 +45,18 @@ def detector_noise(p_m) -> np.ndarray:
     e = (p_m - CAMERA_M) / d
     along, across = 0.02 * (d / 3.0) ** 2, 0.003 * d / 3.0
     return across**2 * (np.eye(3) - np.outer(e, e)) + along**2 * np.outer(e, e)
+
+
+def _gaussian(rng, mean, cov) -> np.ndarray:
+    """One draw from N(mean, cov) through the Cholesky factor of cov: a seed gives the same numbers
+    on every CPU (to rounding). ``Generator.multivariate_normal`` factors cov by SVD, and R's two
+    equal variances across the line of sight leave its singular vectors free to turn: another
+    BLAS kernel turns them, and the same seed draws another sample. Variables of zero variance
+    (the CV mode's acceleration) are drawn at their mean."""
+    out = np.array(mean, dtype=float)
+    keep = np.diag(cov) > 0
+    out[keep] += np.linalg.cholesky(cov[np.ix_(keep, keep)]) @ rng.standard_normal(int(keep.sum()))
+    return out
 
 
 def _allclose(a, b, rtol=1e-9):
@@ -83,7 +96,7 @@ def test_cv_and_ca_equal_filterpy_kalman_filter(order):
     ref = None
     for k, t in enumerate(times):
         R = detector_noise(truth[k])
-        z = rng.multivariate_normal(truth[k], R)
+        z = _gaussian(rng, truth[k], R)
         assert ours.update(t, z, R)
         if ref is None:  # one-point start, as documented
             x0 = np.zeros(3 * order)
@@ -159,7 +172,7 @@ def test_imm_equals_filterpy_imm_estimator():
     ref = None
     for k, t in enumerate(times):
         R = detector_noise(truth[k])
-        z = rng.multivariate_normal(truth[k], R)
+        z = _gaussian(rng, truth[k], R)
         imm.update(t, z, R)
         if ref is None:
             # one-point start: p = z, P_pp = R, velocity σ 2 m/s; acceleration 0, σ 5 m/s² in the
@@ -231,7 +244,7 @@ def _truth_from_model(order, q, rng, n_steps, v_std, a_std):
     x = np.r_[3.0, 0.0, 2.0, rng.normal(0.0, v_std, 3), rng.normal(0.0, a_std, 3 * order - 6)]
     states = [x]
     for _ in range(n_steps - 1):
-        x = F @ x + rng.multivariate_normal(np.zeros(3 * order), Q)
+        x = F @ x + _gaussian(rng, np.zeros(3 * order), Q)
         states.append(x)
     return np.array(states)
 
@@ -244,7 +257,7 @@ def _run_single(make_filter, order, q, seed, n_steps=90, v_std=2.0, a_std=5.0):
     out_nees, out_nis = [], []
     for k, x in enumerate(states):
         R = detector_noise(x[:3])
-        f.update(k * FRAME_S, rng.multivariate_normal(x[:3], R), R)
+        f.update(k * FRAME_S, _gaussian(rng, x[:3], R), R)
         out_nees.append(nees(x, f.x, f.P) if f.t_s == k * FRAME_S else math.nan)  # x is at f.t_s
         out_nis.append(f.nis)
     return np.array(out_nees), np.array(out_nis), f.n_rejected
@@ -300,9 +313,9 @@ def _imm_own_model_run(imm, seed, n_steps=90):
         if k:
             mode = rng.choice(2, p=Pi[mode])
             F, Q = modes[mode]
-            x = F @ x + rng.multivariate_normal(np.zeros(9), Q)
+            x = F @ x + _gaussian(rng, np.zeros(9), Q)
         R = detector_noise(x[:3])
-        imm.update(k * FRAME_S, rng.multivariate_normal(x[:3], R), R)
+        imm.update(k * FRAME_S, _gaussian(rng, x[:3], R), R)
         mean, cov = imm.predict(k * FRAME_S)
         out.append((nees(x[:6], mean, cov), imm.nis))
     return np.array(out)
@@ -327,7 +340,7 @@ def _imm_on_target(seed, duration_s=6.0):
     out = np.empty((len(times), 3))
     for k, t in enumerate(times):
         R = detector_noise(p[k])
-        imm.update(t, rng.multivariate_normal(p[k], R), R)
+        imm.update(t, _gaussian(rng, p[k], R), R)
         mean, cov = imm.predict(t)  # at t even when the frame was rejected
         out[k] = nees(np.r_[p[k], v[k]], mean, cov), imm.nis, imm.mode_probability[1]
     starts = target.segment_start_s
