@@ -13,7 +13,9 @@ Oracles
 Consistency (Bar-Shalom et al. 2001, §5.4): over 50 seeded runs, the run-average NEES and NIS at
 each time step should lie in the two-sided 95 % interval of χ²(dof·50)/50. The steps of one run
 are correlated, so the share of steps inside is not binomial; the tests ask for at least 85 % of
-the steps (95 % expected) and for the mean over steps to lie inside the interval.
+the steps (95 % expected) and for the mean over steps to lie inside the interval. Over 60 other
+blocks of 50 seeds (1000 onwards) the share stayed at 0.89 or above for the CV and CA filters;
+the IMM's NEES, of an approximate posterior, fell below 0.85 in 2 blocks of 60 (0.94 here).
 Draws go through Cholesky factors (``_gaussian``), so a seed gives the same sample on every CPU.
 
 The measurement noise of every test follows the detector's geometry: along the line of sight
