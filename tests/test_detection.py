@@ -426,9 +426,13 @@ def test_rendered_sphere_detected_and_exact_method_within_one_percent(rendered_s
 
 def test_undistorted_circle_fits_the_outline_of_the_papers_circle_not_the_refined_edge(rendered_spheres):
     """On a rendered detection with a lens of negligible strength, the circle method after
-    undistortion equals the paper's circle to 1e-6 of the distance. It must undistort the outline
-    the enclosing circle came from (boundary-pixel centres); the refined edge points of
-    ``contour_px`` lie about 0.3 px farther out and would shorten the distance by ~1-2 %."""
+    undistortion equals the paper's circle to the resolution of ``cv2.minEnclosingCircle``: the
+    two enclosing circles are computed in float32 from other inputs (the integer outline; the
+    undistorted points about their mean), and OpenCV pads each radius by 1e-4 px, so they may
+    differ by a few 1e-4 px of radius, 3e-4 px / R of the distance as in the closed-form test
+    (2e-5 at R = 14 px; measured 8e-7). It must undistort the outline the enclosing circle came
+    from (boundary-pixel centres); the refined edge points of ``contour_px`` lie about 0.3 px
+    farther out and would shorten the distance by ~1-2 %."""
     centres, frames = rendered_spheres
     faint = BrownConrady(k1=1e-12)
     for i in range(3):
@@ -436,7 +440,7 @@ def test_undistorted_circle_fits_the_outline_of_the_papers_circle_not_the_refine
         assert det.edge_inset_px == 0.0  # the edges were refined: contour_px is not the outline
         paper = locate_sphere_circle(det, CAM, RADIUS_M)
         undistorted = locate_sphere_circle_undistorted(det, CAM, RADIUS_M, faint)
-        assert np.linalg.norm(undistorted) == pytest.approx(np.linalg.norm(paper), rel=1e-6)
+        assert np.linalg.norm(undistorted) == pytest.approx(np.linalg.norm(paper), rel=3e-4 / det.radius_px)
 
 
 def test_rendered_sphere_circle_method_within_one_percent_on_axis(rendered_spheres):
