@@ -41,8 +41,8 @@ def add_parsers(sub) -> None:
     run = sub.add_parser("run", help="run a study and write its tables, claims and figures",
                          description="Run a study: its closed-loop runs (reusing finished ones), then tables, "
                                      "verdicts and figures written to OUT/STUDY.")
-    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}")
-    run.add_argument("--list", action="store_true", help="list the studies and exit")
+    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}; or a scenario file, FILE.toml")
+    run.add_argument("--list", action="store_true", help="list the studies and the example scenarios and exit")
     _add_run_options(run)
     run.set_defaults(func=_run)
     rep = sub.add_parser("reproduce", help="the paper's study (= run paper)",
@@ -55,6 +55,11 @@ def _run(args, parser) -> int:
     if args.list:
         for name, module in STUDIES.items():
             print(f"{name:12s} {load(name).DESCRIPTION}")
+        from .scenario import shipped_scenarios
+
+        for path, description in shipped_scenarios():
+            shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else str(path)
+            print(f"{shown}  {description}")
         return 0
     if not args.study:
         parser.error("name a study (gimbal-lab run --list shows them)")
@@ -65,7 +70,12 @@ def _run(args, parser) -> int:
     if not args.out or not args.out.strip():
         parser.error("--out must name a folder, got an empty string")
     try:
-        params = module.Study.from_toml(args.config) if args.config else module.Study()
+        if args.study.endswith(".toml"):  # a scenario file is its own config
+            if args.config:
+                raise ValueError("--config sets a built-in study's parameters; a scenario file holds its own")
+            params = module.Study.from_toml(args.study)
+        else:
+            params = module.Study.from_toml(args.config) if args.config else module.Study()
         if args.replicates is not None:
             params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
     except (ValueError, TypeError, FileNotFoundError) as exc:
@@ -101,7 +111,7 @@ def _run(args, parser) -> int:
               f"run the same command again to resume.", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
-        print(f"\nInterrupted while writing the report; {out / args.study} is unchanged. Run the same command "
+        print(f"\nInterrupted while writing the report; {out / getattr(params, 'name', args.study)} is unchanged. Run the same command "
               "again (every run is kept in the store).", file=sys.stderr)
         return 130
     finally:
