@@ -44,9 +44,9 @@ def plot_cells(summary, fig=None):
             err = np.vstack((np.where(np.isfinite(lo), v - lo, 0.0), np.where(np.isfinite(hi), hi - v, 0.0)))
             ax.errorbar(v, y[sel], xerr=err, fmt="o", color=colour, ms=5, capsize=3, label=mode)
     ax_err.set_yticks(y, summary["label"], fontsize=8)
-    ax_err.set_xlabel("distance error |d_est − d_true| (mm), mean of replicates, 95 % interval")
+    ax_err.set_xlabel("distance error (mm): mean of replicates, 95 % interval")
     ax_err.set_xlim(left=0)
-    ax_rate.set_xlabel("detection rate (measured revolutions), 95 % interval")
+    ax_rate.set_xlabel("detection rate, 95 % interval")
     ax_rate.set_xlim(-0.02, 1.02)
     for ax in (ax_err, ax_rate):
         ax.grid(axis="x", alpha=0.3)

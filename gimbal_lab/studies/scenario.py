@@ -51,6 +51,7 @@ rig's nested dict before the config is built; the closed loop never sees a scena
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import json
 import math
@@ -160,8 +161,6 @@ def _field_path(key: str, fail) -> tuple[str, ...]:
         raise fail("sweep", key, f"{part!r} is not a part", f"a part ({', '.join(_PARTS)}) or part.field")
     obj = _PARTS[part]()
     for depth, name in enumerate(path[1:], start=1):
-        import dataclasses
-
         if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
             raise fail("sweep", key, f"{'.'.join(path[:depth])} has no fields", "a field of a part, or of its "
                        "parameter tables (platform.sway.yaw_rms_rad)")
@@ -312,6 +311,21 @@ def _hypothesis(hid: str, table, factors: dict, fail) -> dict:
     return {"factor": factor, "a": a, "b": b, "kind": kind, "metric": metric, "floor": floor, "statement": statement}
 
 
+def _check_hypothesis(hid: str, h, factors: dict, fail) -> None:
+    """A resolved hypothesis (``Scenario.hypotheses``) refers to the scenario's factors and levels."""
+    where = f"compare.{hid}"
+    if not isinstance(h, dict) or set(h) != set(_HYPOTHESIS_KEYS):
+        raise fail(where, None, f"{h!r} is not a resolved hypothesis", f"a dict of {', '.join(_HYPOTHESIS_KEYS)}")
+    if h["factor"] not in factors:
+        raise fail(where, "factor", f"{h['factor']!r} is not a [sweep] factor", ", ".join(factors) or "none")
+    for key in ("a", "b"):
+        if h[key] not in factors[h["factor"]]:
+            raise fail(where, key, f"{h[key]!r} is not a level of {h['factor']}", ", ".join(factors[h["factor"]]))
+    if h["kind"] not in KINDS or h["metric"] not in METRICS:
+        raise fail(where, "kind" if h["kind"] not in KINDS else "metric", f"{h['kind']!r}, {h['metric']!r}",
+                   f"kind {', '.join(KINDS)}; metric {', '.join(METRICS)}")
+
+
 # ----------------------------------------------------------------------------------------------
 # the scenario
 # ----------------------------------------------------------------------------------------------
@@ -339,6 +353,8 @@ class Scenario:
         Of the target's motion per replicate, >= 2: the first is acquisition.
     source : str
         The file it was read from (errors name it).
+    text : str
+        The file's text as it was read (the report keeps a copy).
 
     Raises
     ------
@@ -356,6 +372,7 @@ class Scenario:
     first_seed: int = _RUN["first_seed"]
     revolutions: float = _RUN["revolutions"]
     source: str = ""
+    text: str = ""
 
     def __post_init__(self):
         fail = _Errors(self.source or f"scenario {self.name!r}")
@@ -369,6 +386,8 @@ class Scenario:
                                                   "first_seed": "an integer >= 0",
                                                   "revolutions": "a number >= 2 (the first is acquisition)"}[key]) \
                     from None
+        for hid, h in self.hypotheses.items():
+            _check_hypothesis(hid, h, self.factors, fail)
         for cell in self.cells:
             for seed in self.seeds:
                 self.config(cell, seed)
@@ -390,8 +409,9 @@ class Scenario:
         if not path.is_file():
             raise FileNotFoundError(f"no such scenario file: {str(path)!r}")
         fail = _Errors(str(path))
+        text = path.read_text()
         try:
-            data = tomllib.loads(path.read_text())
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"{path}: not valid TOML: {exc}") from None
         unknown = [k for k in data if k not in _TABLES + _TOP_KEYS]
@@ -422,7 +442,7 @@ class Scenario:
         hypotheses = {str(hid): _hypothesis(str(hid), table, factors, fail)
                       for hid, table in data.get("compare", {}).items()}
         fields_ = dict(name=path.name.removesuffix(".toml"), base=base, factors=factors, hypotheses=hypotheses,
-                       description=description, source=str(path), **{k: run[k] for k in run})
+                       description=description, source=str(path), text=text, **{k: run[k] for k in run})
         return cls(**{**fields_, **changes})
 
     def to_dict(self) -> dict:
@@ -784,8 +804,8 @@ def write_report(folder, results, scenario: Scenario) -> list[Path]:
                ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
                ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
                ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, scenario)))]
-    if scenario.source and Path(scenario.source).is_file():
-        writers.append(("scenario.toml", lambda p: p.write_text(Path(scenario.source).read_text())))
+    if scenario.text:
+        writers.append(("scenario.toml", lambda p: p.write_text(scenario.text)))
     written = _params.write_report_files(folder, writers, scenario.name, scenario, len(results))
     figures = folder / "figures"
     save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
