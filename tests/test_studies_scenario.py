@@ -43,6 +43,13 @@ def rig(tmp_path):
 # ----------------------------------------------------------------------------------------------
 # what a file builds
 # ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_scenario_builds_all_its_runs_and_states_hypotheses(path):
+    scenario = sc.Scenario.from_toml(path)
+    assert scenario.description and scenario.hypotheses and scenario.replicates == 10
+    assert len(sc.grid(scenario)) == len(scenario.cells) * 10 == len(set(sc.grid(scenario)))
+
+
 def test_the_paper_rig_is_the_paper_studys_distorted_sphere_cells():
     """Oracle: the paper study's own grid. The scenario's 4 cells × 10 replicates are exactly its
     sphere/distorted cells (same configs, so the same store keys: each reuses the other's runs)."""
