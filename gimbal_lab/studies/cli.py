@@ -34,8 +34,8 @@ def add_parsers(sub) -> None:
                                 "deletes nothing; it refuses a folder holding files it did not write (its list is "
                                 "OUT/STUDY/.gimbal-lab-manifest.json). Files of an earlier run that this one does not "
                                 "write again (the clips after --no-clips) are kept, and the last line names them.")
-    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}")
-    run.add_argument("--list", action="store_true", help="list the studies and exit")
+    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}; or a scenario file, FILE.toml")
+    run.add_argument("--list", action="store_true", help="list the studies and the example scenarios and exit")
     _add_run_options(run)
     run.set_defaults(func=_run, _parser=run)
     rep = sub.add_parser("reproduce", help="the paper's study (= run paper)",
@@ -48,27 +48,40 @@ def _run(args, parser) -> int:
     if args.list:
         for name in STUDIES:
             print(f"{name:12s} {load(name).DESCRIPTION}")
+        from .scenario import shipped_scenarios
+
+        for path, description in shipped_scenarios():
+            shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else str(path)
+            print(f"{shown}  {description}")
         return 0
     if not args.study:
         parser.error("name a study (gimbal-lab run --list shows them)")
-    if args.study not in STUDIES:
-        parser.error(f"unknown study {args.study!r}; known studies: {', '.join(sorted(STUDIES))}")
+    scenario = args.study.endswith(".toml")
+    if not scenario and args.study not in STUDIES:
+        parser.error(f"unknown study {args.study!r}; known studies: {', '.join(sorted(STUDIES))}; "
+                     "or a scenario file, FILE.toml")
     if not args.out or not args.out.strip():
         parser.error("--out must name a folder, got an empty string")
     from ..outputs import OutputError, ReportFolder, check_writable_folder
 
     out = Path(args.out)
-    try:  # before anything is computed: a bad --out fails in one line, at once
-        check_writable_folder(out, "--out")
-        ReportFolder(out / args.study, "the report folder").check()
-    except OutputError as exc:
-        parser.error(str(exc))
     module = load(args.study)
     try:
-        params = module.Study.from_toml(args.config) if args.config else module.Study()
+        if scenario:  # a scenario file is its own config
+            if args.config:
+                raise ValueError("--config sets a built-in study's parameters; a scenario file holds its own")
+            params = module.Study.from_toml(args.study)
+        else:
+            params = module.Study.from_toml(args.config) if args.config else module.Study()
         if args.replicates is not None:
             params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
     except (ValueError, TypeError, FileNotFoundError) as exc:
+        parser.error(str(exc))
+    name = params.name if scenario else args.study
+    try:  # before anything is computed: a bad --out fails in one line, at once
+        check_writable_folder(out, "--out")
+        ReportFolder(out / name, "the report folder").check()
+    except OutputError as exc:
         parser.error(str(exc))
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
