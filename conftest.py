@@ -1,25 +1,36 @@
-"""Settings for the whole test run (unit tests and notebooks)."""
+"""Settings for the whole test run (unit tests and notebooks), in one process or under pytest-xdist.
 
+* One BLAS thread, static widgets, 3 replicates per cell in the extension notebooks (below).
+* **The suite's own results store.** The notebooks keep their runs in a store made for this test
+  run (a temporary folder, deleted at the end), never in the user's (``results/store``,
+  ``$GIMBAL_LAB_STORE``): a test run checks the science computed by the code under test. The
+  store's keys hold the package's source hash, so a user's entry can never be stale code, but
+  they do not hold the versions of numpy, OpenCV or Mesa that computed it, and a test must not
+  pass on a run made before an upgrade. Set ``GIMBAL_LAB_TEST_STORE=PATH`` to keep the suite's
+  store in PATH and reuse it in the next test run (reruns of one notebook while editing it).
+  Notebooks run with ``GIMBAL_LAB_STORE`` set to that store; unit tests run without it.
+  Under pytest-xdist every worker uses the one store the controlling process made, so notebooks
+  07 and 08 share their paper runs there; the store's claims (``gimbal_lab.runner.ResultsStore``)
+  keep two workers from computing one run twice.
+* **Worker processes.** Under ``pytest -n N`` each xdist worker's sweeps start ``CPUs // N``
+  local workers (``GIMBAL_LAB_JOBS``, read by ``gimbal_lab.runner.default_jobs``), not one per
+  CPU each.
+* **Time budget.** The wall time of each test file and notebook is summed and, at the end,
+  compared with ``benchmarks/suite_budget.toml``; a file over its budget is named (a note, never a
+  failure: speed is measured, not asserted). ``--time-budget`` prints every file's time.
+"""
+
+import fnmatch
 import os
-import sys
+import resource
+import shutil
+import tempfile
+import time
+import tomllib
+from collections import defaultdict
+from pathlib import Path
 
-# GIMBAL_LAB_OTHER_CPU=1 runs the tests as on another x86-64 CPU: the libraries pick their kernels
-# per CPU at run time, and an iterative or ill-conditioned computation's last digits follow the
-# kernels (issue 26). Set before numpy and OpenCV are loaded, in this process and in the notebook
-# kernels and workers it starts: OpenCV's dispatched code at its SSE3 baseline and Intel IPP off,
-# numpy's SIMD loops at their baseline, OpenBLAS's generic SSE3 kernels. Each can also be set by
-# hand, and so can a BLAS thread count other than 1 (OPENBLAS_NUM_THREADS=2 splits BLAS sums
-# differently, but the study workers then run two BLAS threads each beside their renderer).
-if os.environ.get("GIMBAL_LAB_OTHER_CPU", "0") not in ("", "0"):
-    if "numpy" in sys.modules or "cv2" in sys.modules:
-        raise RuntimeError("GIMBAL_LAB_OTHER_CPU must take effect before numpy and cv2 are imported")
-    os.environ.setdefault("OPENCV_CPU_DISABLE", "SSE4.1,SSE4.2,AVX,FP16,AVX2,AVX512-SKX")
-    os.environ.setdefault("OPENCV_IPP", "disabled")
-    os.environ.setdefault("NPY_DISABLE_CPU_FEATURES", "X86_V3 X86_V4 AVX512_ICL AVX512_SPR")
-    os.environ.setdefault("OPENBLAS_CORETYPE", "Prescott")
-    import cv2
-
-    cv2.setUseOptimized(False)  # this process: IPP, dispatch and OpenCL off at once
+import pytest
 
 # One BLAS thread in this process and in the notebook kernels it starts (before numpy is
 # imported): the matrices are small and a second thread beside the renderer only spins
@@ -36,3 +47,138 @@ os.environ.setdefault("GIMBAL_LAB_WIDGETS", "0")
 # about 33 minutes at full size on 2 cores. Same code, fewer replicates; their checks hold at any
 # count. Set GIMBAL_LAB_REPLICATES=10 before `pytest` to test the full size.
 os.environ.setdefault("GIMBAL_LAB_REPLICATES", "3")
+
+ROOT = Path(__file__).resolve().parent
+#: The user's store never reaches the suite (see the module's docstring).
+STORE_ENV, TEST_STORE_ENV, JOBS_ENV = "GIMBAL_LAB_STORE", "GIMBAL_LAB_TEST_STORE", "GIMBAL_LAB_JOBS"
+os.environ.pop(STORE_ENV, None)
+BUDGET_FILE = ROOT / "benchmarks" / "suite_budget.toml"
+
+_made_store: Path | None = None  # the store this process made (the controlling one), deleted at the end
+_seconds: dict[str, float] = defaultdict(float)  # test file or notebook -> setup + call + teardown, s
+_cpu_seconds: dict[str, float] = defaultdict(float)  # the same, CPU time of the test process and its children
+_started: dict[str, float] = {}
+
+
+def pytest_addoption(parser):
+    parser.addoption("--time-budget", action="store_true",
+                     help="print every test file's and notebook's time beside its budget (benchmarks/suite_budget.toml)")
+
+
+def pytest_configure(config):
+    global _made_store
+    worker = getattr(config, "workerinput", None)
+    if worker is None:  # this process collects and reports; xdist's workers start later and inherit os.environ
+        if not os.environ.get(TEST_STORE_ENV, "").strip():
+            _made_store = Path(tempfile.mkdtemp(prefix="gimbal-lab-test-store-"))
+            os.environ[TEST_STORE_ENV] = str(_made_store)
+        _started.update(wall=time.time(), load=os.getloadavg()[0])
+    else:
+        share = max(1, (os.cpu_count() or 1) // int(worker["workercount"]))
+        os.environ.setdefault(JOBS_ENV, str(share))
+
+
+def pytest_unconfigure(config):
+    if _made_store is not None:
+        shutil.rmtree(_made_store, ignore_errors=True)
+
+
+def _is_notebook(item) -> bool:
+    return Path(str(item.path)).suffix == ".ipynb"
+
+
+def pytest_runtest_setup(item):
+    if _is_notebook(item):  # the kernel nbmake starts for this notebook inherits it
+        os.environ[STORE_ENV] = str(Path(os.environ[TEST_STORE_ENV]).expanduser().absolute())
+
+
+def pytest_runtest_teardown(item):
+    if _is_notebook(item):
+        os.environ.pop(STORE_ENV, None)
+
+
+# ----------------------------------------------------------------------------------------------
+# time budget
+# ----------------------------------------------------------------------------------------------
+def _cpu_s() -> float:
+    """CPU time (user + system) of this process and of its children that have ended, s: a
+    notebook's kernel and the study workers it started count once the notebook is done."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    item._cpu_mark = _cpu_s()
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = (yield).get_result()
+    now = _cpu_s()
+    # travels with the report to xdist's controlling process
+    report.user_properties.append(("cpu_s", now - getattr(item, "_cpu_mark", now)))
+    item._cpu_mark = now
+
+
+def pytest_runtest_logreport(report):
+    # the controlling process receives every worker's reports too
+    name = report.nodeid.split("::", 1)[0]
+    _seconds[name] += report.duration
+    _cpu_seconds[name] += sum(value for key, value in report.user_properties if key == "cpu_s")
+
+
+def load_budget(path: Path = BUDGET_FILE) -> tuple[float | None, dict[str, float]]:
+    """The suite's total budget and the budget of each pattern (a glob over test files and
+    notebooks, relative to the repository's root, whose times add up), in seconds."""
+    if not path.is_file():
+        return None, {}
+    data = tomllib.loads(path.read_text())
+    return data.get("total_s"), dict(data.get("files", {}))
+
+
+def budget_rows(seconds: dict[str, float], cpu_seconds: dict[str, float], budget: dict[str, float]
+                ) -> list[tuple[str, float, float, float | None]]:
+    """(pattern or file, seconds, CPU seconds, budget or None) for every budget pattern that
+    matches a file (its files' times added up), then for every file no pattern covers, slowest
+    first within each part."""
+    rows, covered = [], set()
+    for pattern, limit in budget.items():
+        matched = [name for name in seconds if fnmatch.fnmatchcase(name, pattern)]
+        covered.update(matched)
+        if matched:
+            rows.append((pattern, sum(seconds[n] for n in matched), sum(cpu_seconds.get(n, 0.0) for n in matched),
+                         float(limit)))
+    rows.sort(key=lambda row: -row[1])
+    rest = sorted(((name, s, cpu_seconds.get(name, 0.0), None) for name, s in seconds.items() if name not in covered),
+                  key=lambda row: -row[1])
+    return rows + rest
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    if getattr(config, "workerinput", None) is not None or not _seconds or "wall" not in _started:
+        return
+    try:
+        total_budget, budget = load_budget()
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        terminalreporter.write_line(f"time budget: cannot read {BUDGET_FILE}: {exc}")
+        return
+    wall = time.time() - _started["wall"]
+    rows = budget_rows(_seconds, _cpu_seconds, budget)
+    over = [row for row in rows if row[3] is not None and row[1] > row[3]]
+    everything = config.getoption("--time-budget")
+    tr = terminalreporter
+    tr.section("time budget (benchmarks/suite_budget.toml: wall seconds on 2 cores at light load)")
+    limit_text = f" (budget {total_budget:.0f} s)" if total_budget else ""
+    tr.write_line(f"wall time {wall:.0f} s{limit_text}; the tests' wall times add up to {sum(_seconds.values()):.0f} s, "
+                  f"their CPU times to {sum(_cpu_seconds.values()):.0f} s; 1-minute load average "
+                  f"{_started['load']:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, {os.cpu_count()} CPUs")
+    if everything or over:
+        tr.write_line(f"{'wall s':>8s} {'CPU s':>7s} {'budget':>6s}  file or pattern")
+    for name, seconds, cpu, limit in rows if everything else over:
+        limit_text = "" if limit is None else f"{limit:.0f}"
+        mark = "  OVER" if limit is not None and seconds > limit else ""
+        tr.write_line(f"{seconds:8.1f} {cpu:7.1f} {limit_text:>6s}  {name}{mark}")
+    if over and not everything:
+        tr.write_line(f"{len(over)} over budget (a higher load stretches every time); --time-budget lists every file")

@@ -52,7 +52,8 @@ from .outputs import folder_lock as _folder_lock
 from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
 __all__ = ["ResultsStore", "RunInterrupted", "SweepFailed", "SourceMismatch", "WorkersDied", "ResultMismatch",
-           "StoreError", "run", "source_hash", "dask_executor"]
+           "StoreError", "run", "source_hash", "dask_executor",
+           "default_store_root", "default_jobs", "checkout_root", "STORE_ENV", "JOBS_ENV"]
 
 log = logging.getLogger(__name__)
 
@@ -469,6 +470,13 @@ class ResultsStore:
         self._heartbeat: threading.Thread | None = None
         self._open()
 
+    @classmethod
+    def default(cls, read: bool = True) -> ResultsStore:
+        """The store at :func:`default_store_root`: ``$GIMBAL_LAB_STORE``, else ``results/store`` at
+        the checkout's root (inside the checkout), else in the current folder. The notebooks' store,
+        and ``gimbal-lab run``'s when run from the checkout's root with the default ``--out``."""
+        return cls(default_store_root(), read=read)
+
     def __repr__(self) -> str:
         return f"ResultsStore({str(self.root)!r})"
 
@@ -807,6 +815,78 @@ def _claim_is_stale(path: Path) -> bool:
 
 
 # ----------------------------------------------------------------------------------------------
+# where the store is, and how many local workers a sweep starts
+# ----------------------------------------------------------------------------------------------
+#: Environment variable naming the results store that notebooks and commands use by default.
+STORE_ENV = "GIMBAL_LAB_STORE"
+#: Environment variable giving the number of local worker processes of a sweep that names none.
+JOBS_ENV = "GIMBAL_LAB_JOBS"
+#: The distribution name in the checkout's ``pyproject.toml``.
+_PROJECT_NAME = "gimbal-lab"
+
+
+def checkout_root() -> Path | None:
+    """The source checkout this package is imported from, when the current folder lies inside it.
+
+    The package's parent folder is a checkout when it holds the project's ``pyproject.toml`` (an
+    editable install, ``pip install -e .``, imports the package from there). None for an installed
+    copy of the package, or when the current folder is outside the checkout.
+    """
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        name = tomllib.loads((root / "pyproject.toml").read_text()).get("project", {}).get("name")
+        here = Path.cwd().resolve()
+    except (OSError, ValueError):  # no pyproject.toml, an unreadable one, a current folder deleted
+        return None
+    if name != _PROJECT_NAME:
+        return None
+    return root if here == root or root in here.parents else None
+
+
+def default_store_root() -> Path:
+    """The results store used when none is given, as an absolute path.
+
+    1. ``$GIMBAL_LAB_STORE`` when set and not blank (``~`` expanded; a relative path is taken from
+       the current folder, which for a notebook is ``notebooks/``: give an absolute one);
+    2. else ``results/store`` at the checkout's root (:func:`checkout_root`) when the current
+       folder is inside the checkout: a notebook run from ``notebooks/`` and
+       ``gimbal-lab run paper --out results`` run from the root share one store;
+    3. else ``results/store`` in the current folder (``gimbal-lab run``'s default there).
+    """
+    text = os.environ.get(STORE_ENV, "")
+    if text.strip():
+        return Path(text).expanduser().absolute()
+    root = checkout_root()
+    return (root if root is not None else Path.cwd()) / "results" / "store"
+
+
+def default_jobs() -> int:
+    """Local worker processes of a sweep that names none: ``$GIMBAL_LAB_JOBS`` when set, else the
+    CPU count.
+
+    The test suite sets ``GIMBAL_LAB_JOBS`` in each pytest-xdist worker to its share of the CPUs,
+    so notebooks running side by side do not start a pool of every CPU each.
+
+    Raises
+    ------
+    ValueError
+        ``$GIMBAL_LAB_JOBS`` is set but is not an integer >= 1 (the message names the variable).
+    """
+    text = os.environ.get(JOBS_ENV, "").strip()
+    if not text:
+        return os.cpu_count() or 1
+    try:
+        jobs = int(text)
+    except ValueError:
+        jobs = 0
+    if jobs < 1:
+        raise ValueError(f"{JOBS_ENV} must be an integer >= 1 (local worker processes), got {text!r}")
+    return jobs
+
+
+# ----------------------------------------------------------------------------------------------
 # workers
 # ----------------------------------------------------------------------------------------------
 _RENDERERS: dict = {}
@@ -999,7 +1079,8 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
         worker processes, or this process when ``jobs == 1`` (which then holds a GL context and
         must not fork afterwards).
     jobs : int, optional
-        Local worker processes, >= 1 (default: the CPU count, at most the number of runs).
+        Local worker processes, >= 1 (default: :func:`default_jobs`, ``$GIMBAL_LAB_JOBS`` or the
+        CPU count; at most the number of runs).
     progress : bool
         One bar over all frames to compute, with frames/s and the time left.
 
@@ -1022,7 +1103,7 @@ def run(configs, *, store=None, executor: Executor | None = None, jobs: int | No
     if executor is not None and not isinstance(executor, Executor):
         raise TypeError(f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}")
     if jobs is None:
-        jobs = os.cpu_count() or 1
+        jobs = default_jobs()
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     if store is not None and not isinstance(store, ResultsStore):

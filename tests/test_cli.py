@@ -282,8 +282,9 @@ def test_a_rerun_replaces_only_its_own_files_and_names_the_ones_it_kept(capsys, 
                                capsys)
     assert status == 0, err
     assert stdout.strip().splitlines()[-1] == (
-        f"Wrote {len(written) - 2} files to {report}; kept 2 file(s) of an earlier run that this one did not write "
-        f"again: clips/aruco.mp4, clips/sphere.mp4; the per-run log is {out / 'run.log'}.")
+        f"Wrote {len(written) - 4} files to {report}; kept 4 file(s) of an earlier run that this one did not write "
+        f"again: clips/aruco.json, clips/aruco.mp4, clips/sphere.json, clips/sphere.mp4; the per-run log is "
+        f"{out / 'run.log'}.")
     assert (report / "claims.md").read_text() != "edited"
     assert {name: (report / name).read_bytes() for name in clips} == clips
     assert [p.name for p in report.iterdir() if p.name.startswith(".")] == [MANIFEST]

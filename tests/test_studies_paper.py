@@ -196,8 +196,8 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
     assert len(cell) == 4
     results = [simulate(c) for c in cell + other]
     written = paper.write_clips(tmp_path, results, study)
-    assert [p.name for p in written] == ["sphere.mp4", "aruco.mp4"]
-    for path in written:
+    assert [p.name for p in written] == ["sphere.mp4", "sphere.json", "aruco.mp4", "aruco.json"]
+    for path in written[::2]:
         cap = cv2.VideoCapture(str(path))
         frames, width = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         cap.release()
@@ -206,6 +206,58 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
         assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", cell[0].n_frames)
     # a target whose pair is missing gets no clip (e.g. a study run for one target)
     assert paper.write_clips(tmp_path / "none", results[:1], study) == []
+
+
+def test_a_clip_whose_runs_are_unchanged_is_copied_not_rendered(tmp_path, monkeypatch):
+    """write_clips(previous=...) copies an earlier report's clip when its runs' store keys match and
+    its bytes match its sidecar's digest; anything else renders it again."""
+    import hashlib
+    import json
+
+    import gimbal_lab.show
+    from gimbal_lab.runner import ResultsStore
+    from gimbal_lab.simulation import simulate
+
+    study = paper.PaperStudy(replicates=2, period_s=0.3)
+    cell = [c for c in paper.grid(study, targets=("sphere",))
+            if (c.camera.lens_label, c.target.trajectory, c.seed) == (*paper.CLIP_CELL, 0)]
+    results = [simulate(c) for c in cell]
+    first = tmp_path / "first"
+    [clip, sidecar] = paper.write_clips(first, results, study)
+    meta = json.loads(sidecar.read_text())
+    by_mode = {r.config.pointing.mode: r for r in results}
+    assert [run["store_key"] for run in meta["runs"]] == [ResultsStore.key(by_mode[m].config) for m in ("passive", "active")]
+    assert meta["sha256"] == hashlib.sha256(clip.read_bytes()).hexdigest()
+
+    rendered = []
+    side_by_side = gimbal_lab.show.side_by_side
+
+    def counting(passive, active, *args, **kwargs):
+        rendered.append((passive.config.seed, active.config.seed))
+        return side_by_side(passive, active, *args, **kwargs)
+
+    monkeypatch.setattr(gimbal_lab.show, "side_by_side", counting)
+    again = paper.write_clips(tmp_path / "again", results, study, previous=first)
+    assert rendered == [] and again[0].read_bytes() == clip.read_bytes()
+    assert json.loads(again[1].read_text()) == meta
+
+    # another run in the pair (the same cell, seed 1 as first replicate): rendered again
+    seed1 = paper.PaperStudy(replicates=2, period_s=0.3, first_seed=1)
+    other = [simulate(c) for c in paper.grid(seed1, targets=("sphere",))
+             if (c.camera.lens_label, c.target.trajectory, c.seed) == (*paper.CLIP_CELL, 1)]
+    paper.write_clips(tmp_path / "other", other, seed1, previous=first)
+    assert rendered == [(1, 1)]
+    # a clip whose bytes no longer match its sidecar, or without a sidecar: rendered again
+    with open(clip, "r+b") as f:
+        f.seek(200)
+        byte = f.read(1)
+        f.seek(200)
+        f.write(bytes([byte[0] ^ 1]))
+    paper.write_clips(tmp_path / "damaged", results, study, previous=first)
+    assert rendered == [(1, 1), (0, 0)]
+    (tmp_path / "again" / "clips" / "sphere.json").unlink()  # an intact clip without its sidecar
+    paper.write_clips(tmp_path / "no-sidecar", results, study, previous=tmp_path / "again")
+    assert rendered == [(1, 1), (0, 0), (0, 0)]
 
 
 def test_report_writes_tables_claims_figures_and_metadata(tmp_path):

@@ -14,6 +14,9 @@ def _add_run_options(p) -> None:
     p.add_argument("--out", default="results", metavar="DIR",
                    help="output folder (default: results): the report goes to DIR/STUDY, finished runs to "
                         "DIR/store, the log to DIR/run.log")
+    p.add_argument("--store", metavar="DIR",
+                   help="results store: finished runs are kept in and reused from DIR (default: $GIMBAL_LAB_STORE "
+                        "when set, else OUT/store)")
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
     p.add_argument("--jobs", type=positive_int, metavar="N", help="local worker processes (default: every CPU)")
@@ -85,10 +88,21 @@ def _run(args, parser) -> int:
         parser.error(str(exc))
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    from ..runner import ResultsStore, dask_executor
+    from ..runner import STORE_ENV, ResultsStore, dask_executor, default_jobs, default_store_root
 
-    store_root = out / "store"
+    if args.store is not None:
+        if not args.store.strip():
+            parser.error("--store must name a folder, got an empty string")
+        store_root = Path(args.store).expanduser()
+    elif os.environ.get(STORE_ENV, "").strip():
+        store_root = default_store_root()
+    else:
+        store_root = out / "store"
     store = ResultsStore(store_root, read=args.cache)  # a StoreError is one line (gimbal_lab.cli.main)
+    try:  # the store may lie elsewhere (--store, $GIMBAL_LAB_STORE): OUT is not made with it
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"--out {out} cannot be made: {exc.strerror or exc}", out) from None
     log_path = out / "run.log"
     try:
         handler = logging.FileHandler(log_path)
@@ -106,7 +120,7 @@ def _run(args, parser) -> int:
             except (ImportError, ValueError, OSError) as exc:
                 parser.error(f"--scheduler: {exc}")
         n_runs = len(module.grid(params))
-        where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or os.cpu_count()} local processes"
+        where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or default_jobs()} local processes"
         print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per cell, {params.revolutions:g} "
               f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)
         try:

@@ -480,10 +480,14 @@ def write_report(folder, results, study: PaperStudy) -> list[Path]:
 CLIP_CELL = ("distorted", "circular")
 
 
-def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> list[Path]:
+def write_clips(folder, results, study: PaperStudy, progress: bool = False, previous=None) -> list[Path]:
     """Write ``folder/clips/<target>.mp4``: the :data:`CLIP_CELL` runs of the first replicate,
-    passive left and active right, as :func:`gimbal_lab.show.side_by_side` draws them."""
-    from ..show import side_by_side, write_clip
+    passive left and active right, as :func:`gimbal_lab.show.side_by_side` draws them, each with
+    a ``<target>.json`` naming its runs. A clip of the report in ``previous`` (an earlier
+    ``folder``) whose runs are unchanged is copied, not rendered again
+    (:func:`gimbal_lab.studies._clips.write_or_reuse_clip`)."""
+    from ..show import side_by_side
+    from ._clips import write_or_reuse_clip
 
     written = []
     first = study.seeds[0]
@@ -493,13 +497,19 @@ def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> l
                 == (target, *CLIP_CELL, first)}
         if set(pair) != {"passive", "active"}:
             continue
-        frames = side_by_side(pair["passive"], pair["active"])
-        if progress:
-            from tqdm.auto import tqdm
 
-            frames = tqdm(frames, total=pair["passive"].config.n_frames, desc=f"{target} clip", unit="frame")
-        written.append(write_clip(Path(folder) / "clips" / f"{target}.mp4", frames,
-                                  fps=pair["passive"].config.camera.fps))
+        def frames(pair=pair, target=target):
+            frames = side_by_side(pair["passive"], pair["active"])
+            if progress:
+                from tqdm.auto import tqdm
+
+                frames = tqdm(frames, total=pair["passive"].config.n_frames, desc=f"{target} clip", unit="frame")
+            return frames
+
+        name = Path("clips") / f"{target}.mp4"
+        written += write_or_reuse_clip(Path(folder) / name, (pair["passive"], pair["active"]),
+                                       pair["passive"].config.camera.fps, frames,
+                                       previous=None if previous is None else Path(previous) / name)
     return written
 
 
@@ -514,8 +524,8 @@ def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, p
     """
     from ._params import run_and_report
 
-    def add_clips(folder, results, study):
-        write_clips(folder, results, study, progress=progress)
+    def add_clips(folder, results, study):  # a clip of the report there whose runs are unchanged is reused
+        write_clips(folder, results, study, progress=progress, previous=Path(out) / NAME)
 
     return run_and_report(NAME, "paper study", grid(study), write_report, study, out, store=store,
                           executor=executor, jobs=jobs, progress=progress, extra=add_clips if clips else None)
