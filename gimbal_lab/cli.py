@@ -17,6 +17,8 @@ import argparse
 import os
 import sys
 
+from .argtypes import length_m, nonnegative_int, positive_int  # noqa: F401 (the commands' types, kept here too)
+
 # This process runs studies itself when asked for one job; numpy's BLAS must be limited before
 # numpy is imported (see gimbal_lab.runner.CHILD_THREAD_LIMITS). A value already set is kept.
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -37,41 +39,6 @@ class ArgumentParser(argparse.ArgumentParser):
         own = message.startswith(("argument ", "the following arguments", "unrecognized arguments"))
         hint = f" (see {self.prog} --help)" if own else ""  # argparse's own messages name no remedy
         self.exit(EXIT_USAGE, f"{self.prog}: error: {' '.join(message.split())}{hint}\n")
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
-
-
-def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
-    return value
-
-
-def length_m(text: str) -> float:
-    """argparse type: a finite length > 0, metres (``nan``, ``inf``, 0 and negatives refused)."""
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a length in metres > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite length in metres > 0, got {text!r}")
-    return value
 
 
 class _Version(argparse.Action):

@@ -21,7 +21,7 @@ from .detection import (
     sphere_silhouette_px,
 )
 
-__all__ = ["analytic_sphere_errors", "rendered_sphere_errors", "rendered_marker_errors"]
+__all__ = ["analytic_sphere_errors", "rendered_sphere_errors", "rendered_marker_errors", "pointing_error_deg"]
 
 
 
@@ -160,3 +160,10 @@ def rendered_marker_errors(renderer, T_world_cam, T_cam_markers, trackers: dict)
                 )
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def pointing_error_deg(frames) -> np.ndarray:
+    """Angle between the optical axis and the target's true direction per frame of a frame table
+    (its ``true_cam_{x,y,z}_m`` columns), degrees."""
+    x, y, z = (frames[f"true_cam_{a}_m"].to_numpy(float) for a in "xyz")
+    return np.degrees(np.arctan2(np.hypot(x, y), z))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .cli import length_m, positive_int
+from .argtypes import length_m, positive_int
 
 #: The calibration file formats OpenCV's FileStorage writes, picked by suffix.
 CALIBRATION_SUFFIXES = (".yaml", ".yml", ".xml", ".json")

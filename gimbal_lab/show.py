@@ -30,7 +30,7 @@ import numpy as np
 from .mount import exposure_pose_fn
 from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame
 
-__all__ = ["replay", "annotate", "side_by_side", "write_clip", "show", "default_clip_path"]
+__all__ = ["replay", "annotate", "side_by_side", "write_clip", "default_clip_path"]
 
 _GREY, _GREEN, _YELLOW, _MAGENTA = (170, 170, 170), (40, 220, 60), (255, 220, 0), (255, 0, 255)
 #: Frames of true-centre history drawn as the offset trace.
@@ -241,34 +241,3 @@ def default_clip_path(target: str = "sphere", distortion: str = "default", traje
                       seed: int = 0) -> Path:
     """Where ``gimbal-lab show`` writes a cell's clip when not told: ``results/show/TARGET_LENS_PATH_seedN.mp4``."""
     return Path("results") / "show" / f"{target}_{distortion}_{trajectory}_seed{seed}.mp4"
-
-
-def show(target: str = "sphere", distortion: str = "default", trajectory: str = "circular", seed: int = 0,
-         out=None, *, study=None, store=None, every: int = 1, jobs: int | None = None,
-         progress: bool = True) -> Path:
-    """Run (or reuse from ``store``) the passive and active runs of one paper-study cell and
-    replicate, and write them side by side to ``out`` (.mp4 or .gif; default
-    :func:`default_clip_path`). Returns the clip's path."""
-    from .outputs import check_new_file
-    from .runner import run
-    from .studies.paper import PaperStudy, grid
-
-    study = study or PaperStudy()
-    if seed not in study.seeds:
-        raise ValueError(f"seed must be one of the study's replicates {study.seeds[0]}..{study.seeds[-1]}, got {seed!r}")
-    wanted = {"distortion": {"none": "none", "default": "default"}.get(distortion), "trajectory": trajectory}
-    cells = [c for c in grid(study, targets=(target,)) if c.seed == seed and c.target.trajectory == trajectory
-             and c.camera.lens == wanted["distortion"]]
-    if len(cells) != 2:
-        raise ValueError(f"no study cell for distortion={distortion!r}, trajectory={trajectory!r} "
-                         "(distortion: none or default; trajectory: circular or diagonal)")
-    passive, active = sorted(cells, key=lambda c: c.pointing.active)
-    out = default_clip_path(target, distortion, trajectory, seed) if out is None else Path(out)
-    check_new_file(out, "the clip", suffixes=(".mp4", ".gif"))  # before the runs, not after them
-    r_passive, r_active = run([passive, active], store=store, jobs=jobs, progress=progress, desc="runs to show")
-    frames = side_by_side(r_passive, r_active, every=every)
-    if progress:
-        from tqdm.auto import tqdm
-
-        frames = tqdm(frames, total=math.ceil(passive.n_frames / every), desc="clip", unit="frame")
-    return write_clip(out, frames, fps=passive.camera.fps / every)

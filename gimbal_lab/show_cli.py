@@ -1,4 +1,6 @@
-"""``gimbal-lab show``: the command line of :mod:`gimbal_lab.show`.
+"""``gimbal-lab show``: the command line of :mod:`gimbal_lab.show`, and :func:`show`, which runs a
+paper-study cell and writes its clip (here, above the studies: :mod:`gimbal_lab.show` draws runs
+and imports no study).
 
 Registered in :mod:`gimbal_lab.cli` through :func:`add_parsers`; nothing heavy is imported until
 the command runs. The clip's path is checked before any run is computed.
@@ -8,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .cli import nonnegative_int, positive_int
+from .argtypes import nonnegative_int, positive_int
 
 #: Where a clip goes when ``--out`` is not given (``gimbal_lab.show.default_clip_path``).
 DEFAULT_OUT = "results/show/TARGET_DISTORTION_TRAJECTORY_seedN.mp4"
@@ -43,7 +45,7 @@ def _show_command(args, parser) -> int:
             check_writable_folder(args.store, "--store")
     except OutputError as exc:
         parser.error(str(exc))
-    from .show import default_clip_path, show
+    from .show import default_clip_path
     from .studies.paper import PaperStudy
 
     out = Path(args.out) if args.out is not None else default_clip_path(args.target, args.distortion, args.trajectory,
@@ -64,3 +66,37 @@ def _show_command(args, parser) -> int:
     kind = "H.264 MP4, plays in a browser" if path.suffix.lower() == ".mp4" else "GIF"
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, {kind})")
     return 0
+
+
+def show(target: str = "sphere", distortion: str = "default", trajectory: str = "circular", seed: int = 0,
+         out=None, *, study=None, store=None, every: int = 1, jobs: int | None = None,
+         progress: bool = True) -> Path:
+    """Run (or reuse from ``store``) the passive and active runs of one paper-study cell and
+    replicate, and write them side by side to ``out`` (.mp4 or .gif; default
+    :func:`gimbal_lab.show.default_clip_path`). Returns the clip's path."""
+    import math
+
+    from .outputs import check_new_file
+    from .runner import run
+    from .show import default_clip_path, side_by_side, write_clip
+    from .studies.paper import PaperStudy, grid
+
+    study = study or PaperStudy()
+    if seed not in study.seeds:
+        raise ValueError(f"seed must be one of the study's replicates {study.seeds[0]}..{study.seeds[-1]}, got {seed!r}")
+    wanted = {"distortion": {"none": "none", "default": "default"}.get(distortion), "trajectory": trajectory}
+    cells = [c for c in grid(study, targets=(target,)) if c.seed == seed and c.target.trajectory == trajectory
+             and c.camera.lens == wanted["distortion"]]
+    if len(cells) != 2:
+        raise ValueError(f"no study cell for distortion={distortion!r}, trajectory={trajectory!r} "
+                         "(distortion: none or default; trajectory: circular or diagonal)")
+    passive, active = sorted(cells, key=lambda c: c.pointing.active)
+    out = default_clip_path(target, distortion, trajectory, seed) if out is None else Path(out)
+    check_new_file(out, "the clip", suffixes=(".mp4", ".gif"))  # before the runs, not after them
+    r_passive, r_active = run([passive, active], store=store, jobs=jobs, progress=progress, desc="runs to show")
+    frames = side_by_side(r_passive, r_active, every=every)
+    if progress:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, total=math.ceil(passive.n_frames / every), desc="clip", unit="frame")
+    return write_clip(out, frames, fps=passive.camera.fps / every)

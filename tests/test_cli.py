@@ -334,13 +334,13 @@ def test_a_huge_image_is_refused_before_it_is_decoded(width, height, in_folder, 
 
 
 def test_ctrl_c_in_show_and_calibrate_says_nothing_was_written(capsys, tmp_path, monkeypatch):
-    from gimbal_lab import realworld, show
+    from gimbal_lab import realworld, show_cli
 
     def ctrl_c(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(show, "show", ctrl_c)
+    monkeypatch.setattr(show_cli, "show", ctrl_c)
     status, _, err = call(["show", "--out", "c.mp4"], capsys)
     assert status == 130
     assert_one_line(err, "gimbal-lab show: interrupted: no clip written (c.mp4 is as it was)")
@@ -356,7 +356,7 @@ def test_ctrl_c_in_show_and_calibrate_says_nothing_was_written(capsys, tmp_path,
 
 def test_show_checks_its_clip_before_the_runs(tmp_path, no_runs):
     from gimbal_lab.outputs import OutputError
-    from gimbal_lab.show import show
+    from gimbal_lab.show_cli import show
 
     (tmp_path / "afile").write_text("x")
     with pytest.raises(OutputError, match=f"the clip {tmp_path}/afile/c.mp4 cannot be written: {tmp_path}/afile is a file"):

@@ -70,33 +70,27 @@ def plot_occlusion_metrics(summary, metrics=None, fig=None):
     return fig
 
 
-def plot_occlusion_timelines(results, target: str = "circle", occlusion: str = "panel 1.0 s", seed=None, fig=None):
+def plot_occlusion_timelines(runs, target: str = "circle", occlusion: str = "panel 1.0 s", fig=None):
     """One replicate of every loop: the pointing error against time, hidden frames shaded and
     missed detections marked, for one target and occlusion.
 
     Parameters
     ----------
-    results : sequence of TrackingResult
-        Runs of the occlusion study (:func:`gimbal_lab.studies.occlusion.grid`).
+    runs : mapping of str to TrackingResult
+        Loop name → its run of one cell and replicate
+        (:func:`gimbal_lab.studies.occlusion.timeline_runs` picks them from a study's results).
     target, occlusion : str
-        The cell's target and occlusion names.
-    seed : int, optional
-        The replicate (default: the lowest seed present).
+        The cell's target and occlusion names (the title).
 
     Returns
     -------
     Figure
     """
-    from ..studies.occlusion import _names, pointing_error_deg
+    from ..evaluation import pointing_error_deg
 
-    chosen = {}
-    for r in results:
-        o, t, loop = _names(r.config)
-        if o == occlusion and t == target and (seed is None or r.config.seed == seed):
-            if loop not in chosen or r.config.seed < chosen[loop].config.seed:
-                chosen[loop] = r
+    chosen = dict(runs)
     if not chosen:
-        raise ValueError(f"no run of {target!r} with {occlusion!r}" + ("" if seed is None else f" and seed {seed}"))
+        raise ValueError(f"no run of {target!r} with {occlusion!r}")
     if fig is None:
         fig = plt.figure(figsize=(9.0, 3.6), layout="constrained")
     ax = fig.subplots()

@@ -6,7 +6,7 @@ import logging
 import os
 from pathlib import Path
 
-from ..cli import positive_int
+from ..argtypes import positive_int
 from . import STUDIES, load
 
 

@@ -59,6 +59,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
+from ..evaluation import pointing_error_deg
 from ..scene import Occluder, points_visible
 from ..config import Camera, Pointing, Target, TrackingConfig, _choice, _number
 from . import _params
@@ -67,7 +68,7 @@ from .paper import replicate_phase_s
 
 __all__ = [
     "OcclusionStudy", "Study", "OCCLUSIONS", "TARGETS", "LOOPS", "FILTERS", "AFTER_FRAMES", "ANGLE_FLOOR_DEG",
-    "place_occluder", "hidden_time_s", "occluders_for", "grid", "episodes", "replicate_table", "summary_table",
+    "place_occluder", "hidden_time_s", "occluders_for", "grid", "episodes", "timeline_runs", "replicate_table", "summary_table",
     "check_hypotheses", "hypotheses_markdown", "write_report", "run_study", "example_view",
 ]
 
@@ -205,10 +206,18 @@ def _names(config: TrackingConfig) -> tuple[str, str, str]:
     return occlusion, target, loop
 
 
-def pointing_error_deg(frames: pd.DataFrame) -> np.ndarray:
-    """Angle between the optical axis and the target's true direction per frame, degrees."""
-    x, y, z = (frames[f"true_cam_{a}_m"].to_numpy(float) for a in "xyz")
-    return np.degrees(np.arctan2(np.hypot(x, y), z))
+def timeline_runs(results, target: str = "circle", occlusion: str = "panel 1.0 s", seed=None) -> dict:
+    """Loop name → its run of one cell (``target``, ``occlusion``) and replicate (``seed``, default
+    the lowest present): what :func:`gimbal_lab.plotting.occlusion.plot_occlusion_timelines` draws."""
+    chosen = {}
+    for r in results:
+        o, t, loop = _names(r.config)
+        if o == occlusion and t == target and (seed is None or r.config.seed == seed):
+            if loop not in chosen or r.config.seed < chosen[loop].config.seed:
+                chosen[loop] = r
+    if not chosen:
+        raise ValueError(f"no run of {target!r} with {occlusion!r}" + ("" if seed is None else f" and seed {seed}"))
+    return chosen
 
 
 def episodes(hidden, first: int = 0) -> list[tuple[int, int]]:
@@ -456,7 +465,7 @@ def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
 
     def figures(save, results, summary):
         save(plotting.occlusion.plot_occlusion_metrics(summary), "occlusion_metrics")
-        save(plotting.occlusion.plot_occlusion_timelines(results), "occlusion_timelines")
+        save(plotting.occlusion.plot_occlusion_timelines(timeline_runs(results)), "occlusion_timelines")
 
     return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
 

@@ -1,0 +1,46 @@
+"""Argument types of the command line (argparse ``type=`` functions), shared by every command.
+
+They live below everything else so that a command module at any layer can use them without
+importing :mod:`gimbal_lab.cli`, the top of the package.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["positive_int", "nonnegative_int", "length_m"]
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return value
+
+
+def length_m(text: str) -> float:
+    """argparse type: a finite length > 0, metres (``nan``, ``inf``, 0 and negatives refused)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a length in metres > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite length in metres > 0, got {text!r}")
+    return value
