@@ -31,6 +31,7 @@ pytest.importorskip("pymavlink")
 from gimbal_lab import realworld as rw  # noqa: E402
 from gimbal_lab.camera import Intrinsics, project  # noqa: E402
 from gimbal_lab.calibration import save_calibration  # noqa: E402
+from gimbal_lab.mavlink import frames  # noqa: E402
 from gimbal_lab.mavlink.driver import GimbalLinkLost, MavlinkGimbal  # noqa: E402
 from gimbal_lab.mavlink.steer import GIMBAL_COLUMNS, GimbalSteer  # noqa: E402
 
@@ -149,10 +150,14 @@ def test_track_steers_the_gimbal_towards_the_target_and_logs_every_frame(tmp_pat
     assert log["report_time_s"].notna().iloc[5:].all()  # statuses at 50 Hz arrive from the start
     kin = steer.kinematics
     direction = BALL_M / np.linalg.norm(BALL_M)
-    for row in log.itertuples():
+    for row, msg in zip(log.itertuples(), sent):
         q = np.array([row.known_q_yaw_rad, row.known_q_roll_rad, row.known_q_pitch_rad])
         q = np.where(np.isfinite(q), q, 0.0)
         rate = np.array([row.cmd_yaw_rad_s, row.cmd_roll_rad_s, row.cmd_pitch_rad_s])
+        # what went out is the logged command at the logged joints (float32 on the wire)
+        omega = frames.joint_rates_to_angular_velocity(kin, q, rate)
+        wire = np.array([msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z])
+        np.testing.assert_allclose(wire, omega, rtol=2.0 ** -23, atol=1e-12)
         omega_cam = kin.angular_jacobian(q, frame="camera", check_limits=False) @ rate
         # the camera turned by ω dt: a fixed direction d is seen as d − (ω × d) dt
         seen = direction - np.cross(omega_cam, direction) * 0.01
