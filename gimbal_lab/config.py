@@ -53,7 +53,8 @@ from .trajectories import Trajectory
 # control (python-control, scipy) and scene (OpenCV) are imported where they are used, so that
 # importing the config (and the runner) loads neither
 
-__all__ = ["TrackingConfig", "Camera", "Gimbal", "Platform", "Target", "Pointing", "Estimator", "check_parts",
+__all__ = ["TrackingConfig", "Camera", "Gimbal", "Platform", "Target", "Pointing", "GimbalLink", "Estimator",
+           "check_parts",
            "SCHEMA", "CONE_RANGE_M", "CONE_FIELD_FRACTION", "BODY_POSITION_M", "PLATE_TO_MARKER", "world_T_base",
            "make_target_filter", "Measurement"]
 
@@ -948,6 +949,70 @@ _LAWS = {
 }
 
 
+#: What a link reports and how fast: the device's own limits (gimbal_lab.mavlink.device).
+_MAX_STATUS_RATE_HZ = 1000.0
+
+
+@dataclass(frozen=True)
+class GimbalLink(_Part):
+    """The gimbal behind a MAVLink link (docs/design.md, "The link"): what the loop learns of the
+    joints, and when its commands take effect.
+
+    The active loop then talks to the lab's gimbal as a MAVLink Gimbal Protocol v2 device
+    (:class:`gimbal_lab.mavlink.device.SimulatedGimbalDevice`, lock-step, on a thread of the run's
+    process over loopback UDP) through the driver (:class:`gimbal_lab.mavlink.driver.MavlinkGimbal`):
+    it sends joint rates as GIMBAL_DEVICE_SET_ATTITUDE rates and knows the joints only from the
+    latest GIMBAL_DEVICE_ATTITUDE_STATUS received, stale between statuses.
+
+    Parameters
+    ----------
+    status_rate_hz : float
+        Attitude statuses per second of simulated time, in (0, 1000] (1000: one every inner step).
+    latency_s : float
+        One-way delay of statuses and commands, s, in [0, 1] (whole inner steps).
+    quantum_rad : float
+        Resolution of the reported Z-Y-X angles, rad, in [0, 0.1] (0: float32 only).
+    loss : float
+        Probability that a status is lost, in [0, 0.9].
+    commanded_only : bool
+        The gimbal reports the commanded attitude (the integral of the rates sent) instead of
+        the measured one: a gimbal without angle feedback.
+
+    Notes
+    -----
+    The losses are drawn from stream 4 of the run's seed (:meth:`effects_seed`).
+    """
+
+    status_rate_hz: float = 50.0
+    latency_s: float = 0.0
+    quantum_rad: float = 0.0
+    loss: float = 0.0
+    commanded_only: bool = False
+
+    _NAME = "pointing.link"
+
+    def __post_init__(self):
+        self._number("status_rate_hz", low=0.0, high=_MAX_STATUS_RATE_HZ, low_open=True)
+        self._number("latency_s", low=0.0, high=1.0)
+        self._number("quantum_rad", low=0.0, high=0.1)
+        self._number("loss", low=0.0, high=0.9)
+        if not isinstance(self.commanded_only, (bool, np.bool_)):
+            raise TypeError(f"pointing.link.commanded_only must be True or False, got {self.commanded_only!r}")
+        self._set("commanded_only", bool(self.commanded_only))
+
+    @staticmethod
+    def effects_seed(seed: int) -> int:
+        """The seed of a run's status losses: stream 4 of the run's ``seed``."""
+        return int(np.random.SeedSequence([seed, 4]).generate_state(1)[0])
+
+    @property
+    def label(self) -> str:
+        """A short name: "50 Hz, 20 ms, 0.1°, 5 % loss" (and "commanded only")."""
+        parts = [f"{self.status_rate_hz:g} Hz", f"{1000 * self.latency_s:g} ms", f"{math.degrees(self.quantum_rad):g}°",
+                 f"{100 * self.loss:g} % loss"]
+        return ", ".join(parts) + (", commanded only" if self.commanded_only else "")
+
+
 @dataclass(frozen=True)
 class Pointing(_Part):
     """What turns the camera.
@@ -968,10 +1033,15 @@ class Pointing(_Part):
     filter : {"cv", "ca", "imm"} or None
         The filter of ``kind="filter"`` (:mod:`gimbal_lab.filters`, default parameters; None
         there means "imm"); None for every other kind.
+    link : GimbalLink or None
+        An active loop's gimbal behind a MAVLink link (:class:`GimbalLink`); None: in-process,
+        the loop reads the joints and sets the axes' references directly (the paper's
+        simulation). A passive camera sends no command and takes none.
     """
 
     kind: str = "stabilised"
     filter: str | None = None
+    link: GimbalLink | None = None
 
     _NAME = "pointing"
 
@@ -984,6 +1054,10 @@ class Pointing(_Part):
         elif self.filter is not None:
             raise ValueError(f"pointing.filter={self.filter!r} applies to pointing.kind 'filter' only, got kind "
                              f"{self.kind!r}")
+        self._table("link", GimbalLink, optional=True)
+        if self.link is not None and not self.active:
+            raise ValueError(f"pointing.link applies to the active kinds (paper, predictive, filter), got kind "
+                             f"{self.kind!r}: a passive camera sends no command")
 
     @property
     def mount(self) -> str:
@@ -1237,7 +1311,8 @@ class TrackingConfig:
             return f"{self.target.kind}/{self.platform.motion}/{self.pointing.mount}"
         base = f"{self.target.kind}/{self.camera.lens_label}/{self.target.trajectory}/{self.pointing.mode}"
         strategy = self.estimator.lens_strategy
-        return base if strategy == "ignore" else f"{base}/{strategy}"
+        base = base if strategy == "ignore" else f"{base}/{strategy}"
+        return base if self.pointing.link is None else f"{base} via {self.pointing.link.label}"
 
     # changes and dicts -------------------------------------------------------------------------
     def replace(self, **changes) -> "TrackingConfig":
@@ -1292,7 +1367,8 @@ def check_parts(config: TrackingConfig) -> None:
     * an estimator.lens_strategy other than "ignore" needs a camera lens;
     * target.occluders need camera.blur "subframes" when the camera exposes (the fast blur cannot
       put the target behind them);
-    * pointing "predictive" and "filter" assume a still platform.
+    * pointing "predictive" and "filter" assume a still platform;
+    * a pointing.link assumes a still platform, and reports at most once per gimbal inner step.
 
     Raises
     ------
@@ -1327,6 +1403,13 @@ def check_parts(config: TrackingConfig) -> None:
     if target.occluders and camera.exposure_s > 0 and camera.blur == "fast":
         raise ValueError("target.occluders need camera.blur 'subframes': camera.blur 'fast' cannot put the target "
                          "behind them")
+    if config.pointing.link is not None and config.platform.moving:
+        raise ValueError(f"pointing.link assumes a still platform (the driver maps joint rates to the protocol's "
+                         f"vehicle frame on a level body); platform.motion is {config.platform.motion!r}")
+    if config.pointing.link is not None and config.pointing.link.status_rate_hz > config.gimbal.inner_rate_hz:
+        raise ValueError(f"pointing.link.status_rate_hz={config.pointing.link.status_rate_hz:g} exceeds "
+                         f"gimbal.inner_rate_hz={config.gimbal.inner_rate_hz:g}: the device samples its state at "
+                         "inner steps")
     if config.pointing.assumes_still_platform and config.platform.moving:
         raise ValueError(f"pointing {config.pointing.kind!r} assumes a still platform; platform.motion is "
                          f"{config.platform.motion!r} (use platform.motion 'static' or pointing 'paper')")

@@ -736,7 +736,7 @@ def _make_localiser(target: str, calibration: Calibration, dictionary: str, mark
 
 def track(source, out_dir, target: str, calibration: Calibration, dictionary: str = "DICT_4X4_50",
           marker_length_m: float = 0.30, radius_m: float = 0.10, max_frames: int | None = None,
-          progress: bool = True, video: bool = True):
+          progress: bool = True, video: bool = True, gimbal=None):
     """Detect and localise the target in every frame of a recording; write ``track.mp4`` and ``track.csv``.
 
     Parameters
@@ -758,6 +758,11 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
         Stop after this many frames (>= 1).
     progress, video : bool
         Show a progress bar; write the annotated video.
+    gimbal : gimbal_lab.mavlink.steer.GimbalSteer, optional
+        A gimbal to steer on the detections: ``gimbal.frame(n, uv_px, fps)`` is called once per
+        frame after the frame's rows are written (the first detection's pixel centre, or None; the
+        source's frame rate); when it returns False (the link is lost) the loop stops as after
+        Ctrl-C. The caller closes it.
 
     Returns
     -------
@@ -840,6 +845,9 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
                         n += 1
                     if bar is not None:
                         bar.update(1)
+                    if gimbal is not None and not gimbal.frame(n - 1, found[0][1] if found else None, float(frames.fps)):
+                        interrupted = True
+                        break
             except KeyboardInterrupt:
                 interrupted = True
         with deferred_interrupts():  # the pair is finished and renamed together

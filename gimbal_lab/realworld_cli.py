@@ -7,7 +7,9 @@ frame is read; outputs are written through temporary names (:mod:`gimbal_lab.out
 
 from __future__ import annotations
 
+import math
 import os
+import sys
 from pathlib import Path
 
 from .argtypes import length_m, positive_int
@@ -55,6 +57,13 @@ def add_parsers(subparsers) -> None:
     trk.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="stop after N frames")
     trk.add_argument("--no-video", action="store_true", help="write the CSV only")
     trk.add_argument("--no-progress", action="store_true", help="no progress bar")
+    trk.add_argument("--gimbal", metavar="ADDRESS", default=None,
+                     help="steer a MAVLink gimbal device on the detections (the paper's image loop): udpout:HOST:PORT, "
+                          "udpin:HOST:PORT or a serial port; logs DIR/gimbal.csv (needs the [mavlink] extra)")
+    trk.add_argument("--gimbal-timeout", type=float, default=0.5, metavar="SECONDS",
+                     help="stop when the gimbal is silent this long (default 0.5)")
+    trk.add_argument("--gimbal-wait", type=float, default=5.0, metavar="SECONDS",
+                     help="how long to wait for the gimbal's first HEARTBEAT (default 5)")
     trk.set_defaults(func=_track_command, _parser=trk)
 
 
@@ -111,13 +120,26 @@ def _track_command(args, parser) -> int:
         parser.error(str(exc))
     from . import realworld as rw
 
+    steer = None
     try:
         calibration = rw.load_calibration(args.calibration)
+        if args.gimbal is not None:
+            steer = _open_gimbal(args, out, calibration, parser)
         df = rw.track(args.source, out, args.target, calibration, args.dictionary, args.marker_length, args.radius,
-                      args.max_frames, progress=not args.no_progress, video=not args.no_video)
+                      args.max_frames, progress=not args.no_progress, video=not args.no_video, gimbal=steer)
     except (FileNotFoundError, ValueError, TypeError) as exc:
         parser.error(str(exc))
+    finally:
+        if steer is not None:
+            steer.close()  # zero rates first, while the link works
     a = df.attrs
+    if steer is not None:
+        state = "stopped (zero rates sent)" if steer.stopped else "not stopped: the link is lost"
+        print(f"gimbal {args.gimbal}: {steer.rows} frames steered, {state}; wrote {steer.path}")
+        if steer.lost is not None:
+            print(f"gimbal-lab track: error: the gimbal link is lost, tracking stopped after frame {a['frames'] - 1}: "
+                  f"{steer.lost}", file=sys.stderr)
+            return 1
     detected = df.loc[df["target"] != "", "frame"].nunique()
     written = " and ".join(str(p) for p in a["written"])
     stale = "" if not args.no_video or not (out / "track.mp4").exists() else \
@@ -125,3 +147,21 @@ def _track_command(args, parser) -> int:
     print(f"{a['frames']} frames in {a['seconds']:.1f} s ({a['fps']:.0f} frames/s), target in {detected}; "
           f"wrote {written}{stale}" + ("  (interrupted: kept the frames done so far)" if a["interrupted"] else ""))
     return 130 if a["interrupted"] else 0
+
+
+def _open_gimbal(args, out, calibration, parser):
+    """The :class:`gimbal_lab.mavlink.steer.GimbalSteer` of ``--gimbal`` (one-line errors)."""
+    try:
+        from .mavlink.driver import GimbalLinkError
+        from .mavlink.steer import GimbalSteer
+    except ImportError as exc:
+        parser.error(f"--gimbal needs the [mavlink] extra (pip install 'gimbal-lab[mavlink]'): {exc}")
+    for name in ("gimbal_timeout", "gimbal_wait"):
+        if not (getattr(args, name) > 0 and math.isfinite(getattr(args, name))):
+            parser.error(f"--{name.replace('_', '-')} must be a time > 0 s, got {getattr(args, name)!r}")
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        return GimbalSteer(args.gimbal, calibration.intrinsics, calibration.distortion, out,
+                           timeout_s=args.gimbal_timeout, discover_timeout_s=args.gimbal_wait)
+    except (GimbalLinkError, OSError) as exc:
+        parser.error(f"--gimbal {args.gimbal}: {exc}")

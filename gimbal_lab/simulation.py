@@ -106,6 +106,13 @@ FRAME_COLUMNS = {
                    "for a consistent filter)",
     "at_limit_yaw, at_limit_roll, at_limit_pitch": "the joint sits at its mechanical stop (gimbal.kinematics' "
                                                    "joint_limits_rad) when the exposure starts (gimbal_lab.mount)",
+    "known_q_yaw_rad, known_q_roll_rad, known_q_pitch_rad": "the joint angles the loop took for the frame: the "
+                                                            "truth in-process; behind a link, those of the latest "
+                                                            "attitude status received when the exposure starts (the "
+                                                            "home pose before the first); est_* use them",
+    "known_age_s": "truth instant minus the instant the known joints were sampled, s (0 in-process)",
+    "cmd_yaw_rad_s, cmd_roll_rad_s, cmd_pitch_rad_s": "the joint-rate reference the outer loop gave after the "
+                                                      "frame, rad/s (held until the next frame's)",
 }
 
 
@@ -133,7 +140,53 @@ _COLUMNS = [
     "streak_px", "cam_turn_deg",
     "hidden", "visible_fraction", "partial", "filter_x_m", "filter_y_m", "filter_z_m", "filter_nees",
     "at_limit_yaw", "at_limit_roll", "at_limit_pitch",
+    "known_q_yaw_rad", "known_q_roll_rad", "known_q_pitch_rad", "known_age_s",
+    "cmd_yaw_rad_s", "cmd_roll_rad_s", "cmd_pitch_rad_s",
 ]
+
+
+class DirectGimbal:
+    """The outer loop's side of an in-process gimbal: it reads the mount's joints and sets its
+    axes' references directly (the paper's simulation; :func:`connect`).
+
+    A linked gimbal (:class:`gimbal_lab.mavlink.loop.LinkedGimbal`) offers the same four calls
+    through the MAVLink driver; the closed loop calls them alike.
+
+    Parameters
+    ----------
+    mount : gimbal_lab.mount.GimbalMount
+        The gimbal (the truth).
+    """
+
+    def __init__(self, mount):
+        self.mount = mount
+
+    def joints(self, t_s: float) -> np.ndarray:
+        """The joint angles the loop knows when the frame at ``t_s`` starts, rad: the mount's."""
+        return self.mount.q
+
+    def frame_pose(self, t_s: float, q_truth, T_world_cam_truth):
+        """``(q, T_world_cam, age_s)`` the loop maps the frame's detection with, at its truth instant
+        ``t_s``: in-process, the truth itself (age 0)."""
+        return q_truth, T_world_cam_truth, 0.0
+
+    def drive(self, n_steps: int, rate_ref, q_known) -> None:
+        """Run the axes ``n_steps`` inner steps following ``rate_ref`` (joint rates, rad/s)."""
+        self.mount.advance(n_steps, rate_ref)
+
+    def close(self) -> None:
+        """Nothing to release in-process."""
+
+
+def connect(config: TrackingConfig, mount):
+    """The outer loop's side of the run's gimbal: :class:`DirectGimbal` in-process, or, when
+    ``config.pointing.link`` is set, :class:`gimbal_lab.mavlink.loop.LinkedGimbal` (the mount run by
+    the simulated MAVLink device, lock-step over loopback UDP; needs the ``[mavlink]`` extra)."""
+    if config.pointing.link is None:
+        return DirectGimbal(mount)
+    from .mavlink.loop import LinkedGimbal
+
+    return LinkedGimbal(config, mount)
 
 
 def render_frame(config: TrackingConfig, renderer, camera_fn, t_s: float):
@@ -251,20 +304,28 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     :func:`gimbal_lab.show.replay` runs it again to show a blurred run's frames exactly.
     """
     timing = {"render_s": 0.0, "detect_s": 0.0} if timing is None else timing
-    camera, gimbal, target = config.camera, config.gimbal, config.target
+    camera, gimbal = config.camera, config.gimbal
     rng = np.random.default_rng(config.seed)
+    estimate = config.estimator.build(camera, config.target)
+    n_steps = int(round(config.n_frames / camera.fps * gimbal.inner_rate_hz))
+    mount = gimbal.mount(config.body, config.pointing.mount, n_steps, config.seed)
+    pixel_lens = camera.lens_model if config.estimator.knows_lens else None  # the lens the outer loop knows
+    outer = config.pointing.build(config, gimbal.kinematics, pixel_lens)
+    link = connect(config, mount)
+    try:
+        yield from _frames(config, renderer, timing, mount, outer, link, rng, estimate, n_steps)
+    finally:
+        link.close()
+
+
+def _frames(config, renderer, timing, mount, outer, link, rng, estimate, n_steps):
+    """The frames of :func:`closed_loop`: ``mount`` is the truth, ``link`` what the loop knows and drives."""
+    camera, gimbal, target = config.camera, config.gimbal, config.target
     K = camera.intrinsics
     lens = camera.lens_model
-    estimate = config.estimator.build(camera, target)
-    kin = gimbal.kinematics
-
     n_frames = config.n_frames
-    n_steps = int(round(n_frames / camera.fps * gimbal.inner_rate_hz))
     frame_steps = np.round(np.arange(n_frames + 1) * gimbal.inner_rate_hz / camera.fps).astype(int)
     frame_steps[-1] = n_steps
-    mount = gimbal.mount(config.body, config.pointing.mount, n_steps, config.seed)
-    pixel_lens = lens if config.estimator.knows_lens else None  # the lens the outer loop knows
-    outer = config.pointing.build(config, kin, pixel_lens)
 
     pending: deque = deque()
     rate_ref = np.zeros(3)
@@ -288,9 +349,10 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
         qd = mount.qd
         w0 = mount.smooth_axis_rates
         at_limit = mount.at_limit
+        q_known = link.joints(t_s)
         if run_first:
-            steer(k, q0)
-            mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
+            steer(k, q_known)
+            link.drive(frame_steps[k + 1] - frame_steps[k], rate_ref, q_known)
             camera_fn = mount.recorded_pose_fn(t_s, t_s + window_s)
         else:
             camera_fn = mount.exposure_pose_fn(t_s, t_s + window_s)
@@ -310,13 +372,16 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
         p_cam_true = R.T @ (p_true - c)
         true_uv = project(p_cam_true, K, lens)[0]
         detected = p_cam is not None and bool(np.all(np.isfinite(p_cam)))
-        p_est = R @ p_cam + c if detected else np.full(3, np.nan)
+        # the estimate goes to the world through the pose the loop knows (the truth in-process)
+        q_frame, T_known, known_age_s = link.frame_pose(t_mid, q, T_world_cam)
+        R_known, c_known = T_known[:3, :3], T_known[:3, 3]
+        p_est = R_known @ p_cam + c_known if detected else np.full(3, np.nan)
         p_cam_est = p_cam if detected else np.full(3, np.nan)
         d_true = float(np.linalg.norm(p_cam_true))
         d_est = float(np.linalg.norm(p_cam_est)) if detected else math.nan
         alt_ok = p_cam_alt is not None and bool(np.all(np.isfinite(p_cam_alt)))
         p_cam_alt = p_cam_alt if alt_ok else np.full(3, np.nan)
-        p_alt = R @ p_cam_alt + c
+        p_alt = R_known @ p_cam_alt + c_known
         d_alt = float(np.linalg.norm(p_cam_alt))
         u, v = (uv if uv is not None else (math.nan, math.nan))
         hidden, visible_fraction = target.visibility(c, T_world_target)
@@ -336,9 +401,9 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
              hidden, visible_fraction, partial, *p_filter, filter_nees, *at_limit)
         )
         # the measurement of frame k reaches the outer loop latency_frames frames later
-        pending.append(Measurement(k, t_mid, uv, q, d_est if detected else None, p_cam if detected else None,
-                                   T_world_cam))
+        pending.append(Measurement(k, t_mid, uv, q_frame, d_est if detected else None, p_cam if detected else None,
+                                   T_known))
         if not run_first:
-            steer(k, q0)
-            mount.advance(frame_steps[k + 1] - frame_steps[k], rate_ref)
-        yield row, image
+            steer(k, q_known)
+            link.drive(frame_steps[k + 1] - frame_steps[k], rate_ref, q_known)
+        yield row + (*q_frame, known_age_s, *rate_ref), image

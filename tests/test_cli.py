@@ -78,7 +78,7 @@ TRACK = ["track", "in.mp4", "--target", "aruco", "--calibration", "cam.yaml", "-
 
 @pytest.mark.parametrize("argv, message", [
     (["run", "paper", "--jobs", "0"], "gimbal-lab run: error: argument --jobs: must be an integer >= 1, got '0'"),
-    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, moving-drone, occlusion, paper"),
+    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, link, moving-drone, occlusion, paper"),
     (["run"], "name a study (gimbal-lab run --list shows them)"),
     (["calibrate", "boards", "--square", "nan"], "argument --square: must be a finite length in metres > 0, got 'nan'"),
     (["calibrate", "boards", "--square", "0"], "argument --square: must be a finite length in metres > 0, got '0'"),

@@ -456,6 +456,17 @@ def test_commanded_only_reports_the_command():
         assert np.abs(report.angular_velocity_rad_s - (0.0, 0.0, 0.5)).max() < 6e-8
 
 
+def test_commanded_only_integrates_the_rate_up_to_each_status():
+    """The commanded attitude is carried to the status's own step, however seldom the device
+    re-maps its setpoint (here once a second): yaw 0.5 rad/s for 0.1 s is 0.05 rad at the status."""
+    with lockstep_pair(status_rate_hz=50.0, commanded_only=True, control_period_s=1.0) as (_, gimbal):
+        gimbal.send_rates([0.0, 0.0, 0.5])
+        gimbal.step(0.1)
+        report = gimbal.latest()
+        assert report.time_s == pytest.approx(0.1, abs=1e-9)
+        assert np.abs(np.array(report.euler_rad) - (0.05, 0.0, 0.0)).max() < F32
+
+
 def test_lockstep_runs_are_identical():
     def run():
         with lockstep_pair(status_rate_hz=40.0, latency_s=0.013, loss=0.2, seed=3, quantum_rad=D(0.01)) as (_, gimbal):

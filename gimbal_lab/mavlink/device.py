@@ -427,6 +427,7 @@ class SimulatedGimbalDevice:
         q = self.mount.q
         R_vb, psi, psi_rate = self._body_state()
         if self.effects.commanded_only:
+            self._integrate_command()  # the commanded attitude now, not at the last control step
             R_vehicle = self._R_cmd if self._frame == "vehicle" else frames.rot_z(psi).T @ self._R_cmd
             if self._mode == "rate":
                 omega = self._omega_cmd if self._frame == "vehicle" else frames.rot_z(psi).T @ self._omega_cmd - psi_rate * _Z

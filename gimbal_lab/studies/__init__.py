@@ -15,7 +15,8 @@ __all__ = ["STUDIES", "load"]
 
 #: Study name → module (``gimbal-lab run --list`` prints them).
 STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone",
-           "lens-sweep": "gimbal_lab.studies.lens_sweep", "occlusion": "gimbal_lab.studies.occlusion"}
+           "lens-sweep": "gimbal_lab.studies.lens_sweep", "occlusion": "gimbal_lab.studies.occlusion",
+           "link": "gimbal_lab.studies.link"}
 
 
 def load(name: str):

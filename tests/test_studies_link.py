@@ -1,0 +1,126 @@
+"""The link study (gimbal_lab.studies.link): its links, grid, hypotheses and break-even.
+
+Oracles: the design's levels written out by hand (docs/design.md, "The link study"), verdicts on
+a made-up replicate table whose differences are known (a large gap holds, none does not), and a
+tiny real run through run_study.
+"""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("pymavlink")
+
+from gimbal_lab import stats  # noqa: E402
+from gimbal_lab.config import GimbalLink  # noqa: E402
+from gimbal_lab.studies import STUDIES, link  # noqa: E402
+
+REF = "50 Hz, 0 ms, 0°, 0 % loss"
+
+
+def test_the_one_at_a_time_design_changes_one_factor_at_a_time():
+    names = link.links("one-at-a-time")
+    assert list(names)[:2] == [link.IN_PROCESS, REF]
+    assert names[link.IN_PROCESS] is None
+    singles = {"10 Hz, 0 ms, 0°, 0 % loss": GimbalLink(status_rate_hz=10.0),
+               "5 Hz, 0 ms, 0°, 0 % loss": GimbalLink(status_rate_hz=5.0),
+               "50 Hz, 20 ms, 0°, 0 % loss": GimbalLink(latency_s=0.02),
+               "50 Hz, 60 ms, 0°, 0 % loss": GimbalLink(latency_s=0.06),
+               "50 Hz, 0 ms, 0.1°, 0 % loss": GimbalLink(quantum_rad=math.radians(0.1)),
+               "50 Hz, 0 ms, 0°, 5 % loss": GimbalLink(loss=0.05),
+               "50 Hz, 0 ms, 0°, 0 % loss, commanded only": GimbalLink(commanded_only=True)}
+    for name, expected in singles.items():
+        assert names[name] == expected
+    worst = "5 Hz, 60 ms, 0.1°, 5 % loss, commanded only"
+    assert names[worst] == GimbalLink(status_rate_hz=5.0, latency_s=0.06, quantum_rad=math.radians(0.1), loss=0.05,
+                                      commanded_only=True)
+    assert len(names) == 2 + len(singles) + 1
+    factorial = link.links("factorial")
+    assert len(factorial) == 1 + 3 * 3 * 2 * 2 * 2
+    assert set(names) <= set(factorial)
+    assert [s[1:] for s in link.steps()][:3] == [(link.IN_PROCESS, REF), (REF, "10 Hz, 0 ms, 0°, 0 % loss"),
+                                                 ("10 Hz, 0 ms, 0°, 0 % loss", "5 Hz, 0 ms, 0°, 0 % loss")]
+    assert len(link.steps()) == 8
+
+
+def test_the_grid_pairs_every_link_with_one_passive_run_per_replicate():
+    study = link.LinkStudy(replicates=3)
+    configs = link.grid(study)
+    assert len(configs) == 2 * (1 + 10) * 3
+    passive = [c for c in configs if not c.pointing.active]
+    assert len(passive) == 2 * 3 and all(c.pointing.link is None for c in passive)
+    active = [c for c in configs if c.pointing.active]
+    assert sum(c.pointing.link is None for c in active) == 2 * 3  # the in-process loop
+    assert all((c.camera.lens_label, c.target.trajectory) == ("distorted", "circular") for c in configs)
+    assert len({c.key for c in configs}) == len(configs)
+    # the paper study's replicate draws: the same phase for every link of a seed
+    phases = {(c.target.kind, c.seed): c.target.start_phase_s for c in passive}
+    assert all(c.target.start_phase_s == phases[(c.target.kind, c.seed)] for c in active)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"design": "half"}, "design must be one of"),
+    ({"only": ["100 Hz"]}, "no link named"),
+    ({"targets": ["cube"]}, "targets must be some of"),
+])
+def test_bad_parameters_name_the_field(changes, message):
+    with pytest.raises(ValueError, match=message):
+        link.LinkStudy(**changes)
+    with pytest.raises(TypeError, match="only must be a list"):
+        link.LinkStudy(only="in-process")
+
+
+def made_up(gaps: dict, n=6, passive_m=0.05):
+    """A replicate table: passive error passive_m (+ noise), each link's active error passive − gap."""
+    rng = np.random.default_rng(1)
+    rows = []
+    for target in ("sphere",):
+        for seed in range(n):
+            base = passive_m + 0.002 * rng.standard_normal()
+            rows.append(dict(target=target, link=link.PASSIVE, seed=seed, mean_abs_error_m=base,
+                             mean_world_error_m=base))
+            for name, gap in gaps.items():
+                e = base - gap + 0.0005 * rng.standard_normal()
+                rows.append(dict(target=target, link=name, seed=seed, mean_abs_error_m=e, mean_world_error_m=e))
+    return pd.DataFrame(rows)
+
+
+def test_hypotheses_and_break_even_on_known_differences():
+    """Active 30 mm better than passive in-process and at 50 and 10 Hz, no better at 5 Hz: L1
+    holds down to 10 Hz and breaks even at 5 Hz; L2's 10 → 5 Hz step holds, the others do not
+    (no difference)."""
+    gaps = {link.IN_PROCESS: 0.03, REF: 0.03, "10 Hz, 0 ms, 0°, 0 % loss": 0.03, "5 Hz, 0 ms, 0°, 0 % loss": 0.0}
+    v = link.check_hypotheses(made_up(gaps))
+    l1 = v[v["id"] == "L1"].set_index("condition")
+    assert (l1.loc[[f"sphere, {n}" for n in list(gaps)[:3]], "verdict"] == stats.HOLDS).all()
+    assert l1.loc["sphere, 5 Hz, 0 ms, 0°, 0 % loss", "verdict"] == stats.DOES_NOT_HOLD
+    l2 = v[(v["id"] == "L2") & (v["metric"] == "distance")].set_index("b")
+    assert l2.loc["5 Hz, 0 ms, 0°, 0 % loss", "verdict"] == stats.HOLDS
+    assert l2.loc[REF, "verdict"] == stats.DOES_NOT_HOLD
+    assert {"p_holm", "verdict_holm"} <= set(v.columns)
+    assert len(v) == 2 * 4 + 2 * 3  # L1 and L3 for 4 links; L2 for 3 steps and 2 metrics
+    be = link.break_even(v).set_index("factor")
+    assert be.loc["status_rate_hz", "fails_at"] == "5 Hz, 0 ms, 0°, 0 % loss"
+    assert be.loc["latency_s", "fails_at"] == "none"
+    text = link.hypotheses_markdown(v, link.summary_table(made_up(gaps).assign(
+        detection_rate=1.0, mean_offset_px=0.0, mean_known_joint_error_rad=0.0, mean_known_age_s=0.0)))
+    assert "Break-even of L1" in text and "5 Hz, 0 ms, 0°, 0 % loss" in text
+
+
+def test_a_tiny_study_runs_end_to_end(tmp_path):
+    """Two replicates of the sphere, in-process and the 5 Hz link: every file of the report, the
+    replicate table's links and the known pose's age (0 in-process, up to a status period at 5 Hz)."""
+    study = link.LinkStudy(replicates=2, targets=["sphere"], only=[link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss"])
+    out = link.run_study(study, tmp_path, jobs=1, progress=False)
+    folder = out["folder"]
+    for name in ("claims.md", "verdicts.csv", "replicates.csv", "summary.csv", "study.json",
+                 "figures/advantage_distance.png", "figures/factors_world.png"):
+        assert (folder / name).is_file(), name
+    r = pd.read_csv(folder / "replicates.csv")
+    assert sorted(set(r["link"])) == sorted([link.PASSIVE, link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss"])
+    age = r.set_index("link")["mean_known_age_s"]
+    assert (age[link.IN_PROCESS] == 0).all()
+    assert ((age["5 Hz, 0 ms, 0°, 0 % loss"] > 0.02) & (age["5 Hz, 0 ms, 0°, 0 % loss"] < 0.2)).all()
+    assert STUDIES["link"] == "gimbal_lab.studies.link"
