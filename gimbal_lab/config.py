@@ -801,7 +801,8 @@ class _OuterLoopPart:
 
 class _PaperLoop(_OuterLoopPart):
     """The paper's image loop as an outer-loop part: a new rate reference per measurement, held
-    between measurements; zero rate (hold) while the target is not detected."""
+    between measurements; while the target is not detected, the last one for ``pointing.coast_s``
+    (none by default), then zero rate (hold)."""
 
     def __init__(self, image_loop, kin, fps: float):
         self.image_loop, self.kin, self.dt_s = image_loop, kin, 1.0 / fps
@@ -869,7 +870,8 @@ def _paper(config, kin, pixel_lens) -> _OuterLoopPart:
 
     camera = config.camera
     image_loop = ImageLoop.ziegler_nichols(camera.intrinsics, camera.fps, camera.latency_frames, distortion=pixel_lens,
-                                           max_rate_rad_s=config.gimbal.max_joint_rate_rad_s)
+                                           max_rate_rad_s=config.gimbal.max_joint_rate_rad_s,
+                                           coast_s=config.pointing.coast_s or 0.0)
     return _PaperLoop(image_loop, kin, camera.fps)
 
 
@@ -917,7 +919,7 @@ class Pointing(_Part):
         body is still), see :mod:`gimbal_lab.mount`. Active: "paper", the paper's PI law on the
         pixel error with Ziegler–Nichols gains from the outer loop's own plant
         (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`), holding the joints while the
-        target is lost; "predictive", the line-of-sight filter with feed-forward
+        target is lost (after ``coast_s`` of its last command, if set); "predictive", the line-of-sight filter with feed-forward
         (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension); "filter", pointing where a
         filter on the target's world position predicts it, coasting through misses
         (:class:`gimbal_lab.tracking.FilterPointing`, the occlusion study). "predictive" and
@@ -925,10 +927,16 @@ class Pointing(_Part):
     filter : {"cv", "ca", "imm"} or None
         The filter of ``kind="filter"`` (:mod:`gimbal_lab.filters`, default parameters; None
         there means "imm"); None for every other kind.
+    coast_s : float or None
+        ``kind="paper"`` only: how long the image loop repeats its last rate command after losing
+        the target before it holds the pose, s, >= 0 (:class:`gimbal_lab.control.ImageLoop`
+        ``coast_s``). None (the default) or 0: it holds at once. The occlusion study's blind
+        fallback uses 1.5 s (docs/design.md, "When does a gimbal pay off?", Repairs).
     """
 
     kind: str = "stabilised"
     filter: str | None = None
+    coast_s: float | None = None
 
     _NAME = "pointing"
 
@@ -941,6 +949,11 @@ class Pointing(_Part):
         elif self.filter is not None:
             raise ValueError(f"pointing.filter={self.filter!r} applies to pointing.kind 'filter' only, got kind "
                              f"{self.kind!r}")
+        if self.coast_s is not None:
+            if self.kind != "paper":
+                raise ValueError(f"pointing.coast_s={self.coast_s!r} applies to pointing.kind 'paper' only, got kind "
+                                 f"{self.kind!r}")
+            self._number("coast_s", low=0.0, high=1e6)
 
     @property
     def mount(self) -> str:
