@@ -681,7 +681,8 @@ class Target(_Part):
     trajectory : {"circular", "diagonal", "cone", "manoeuvring"}
         The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the lens sweep's
         cone: a circle about the home optical axis at :data:`CONE_RANGE_M` from the home camera,
-        :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis; or the
+        :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis (or
+        ``cone_half_angle_rad``); or the
         occlusion study's manoeuvring target (:class:`gimbal_lab.trajectories.ManoeuvringTarget`,
         its plan drawn from the run's seed).
     period_s : float
@@ -692,6 +693,11 @@ class Target(_Part):
         Sizes (0.10 m sphere; 0.30 m marker on a plate :data:`PLATE_TO_MARKER` as wide).
     occluders : tuple of gimbal_lab.scene.Occluder
         Boxes in the world that can hide the target (none by default).
+    cone_half_angle_rad : float or None
+        ``trajectory="cone"`` only: the cone's half-angle about the home axis, rad, in (0, π/2).
+        None (the default): :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field
+        (:meth:`cone_half_angle`). The lens sweep's in-limit cones set 40° (docs/design.md, "When
+        does a gimbal pay off?", Repairs).
     """
 
     kind: str = "sphere"
@@ -701,6 +707,7 @@ class Target(_Part):
     sphere_radius_m: float = 0.10
     marker_length_m: float = 0.30
     occluders: tuple = ()
+    cone_half_angle_rad: float | None = None
 
     _NAME = "target"
 
@@ -724,6 +731,21 @@ class Target(_Part):
             if not isinstance(occluder, Occluder):
                 raise TypeError(f"target.occluders must be Occluder objects, got {type(occluder).__name__}")
         self._set("occluders", occluders)
+        if self.cone_half_angle_rad is not None:
+            if self.trajectory != "cone":
+                raise ValueError(f"target.cone_half_angle_rad={self.cone_half_angle_rad!r} applies to target.trajectory "
+                                 f"'cone' only, got {self.trajectory!r}")
+            self._number("cone_half_angle_rad", low=0.0, high=0.5 * math.pi, low_open=True)
+            if self.cone_half_angle_rad >= 0.5 * math.pi:
+                raise ValueError(f"target.cone_half_angle_rad must be < π/2 (the cone lies ahead of the camera), got "
+                                 f"{self.cone_half_angle_rad!r}")
+
+    def cone_half_angle(self, field_rad: float) -> float:
+        """The cone's half-angle about the home axis, rad: ``cone_half_angle_rad``, or
+        :data:`CONE_FIELD_FRACTION` of half the camera's horizontal field ``field_rad`` (rad)."""
+        if self.cone_half_angle_rad is not None:
+            return self.cone_half_angle_rad
+        return CONE_FIELD_FRACTION * 0.5 * field_rad
 
     def path(self, *, seed: int, duration_s: float, home_camera_m, field_rad: float):
         """The motion of a run: the trajectory, built for the run's ``seed`` and ``duration_s``
@@ -733,7 +755,7 @@ class Target(_Part):
             return _manoeuvring_path(seed, duration_s)
         if self.trajectory != "cone":
             return Trajectory(self.trajectory, period_s=self.period_s)
-        half_angle = CONE_FIELD_FRACTION * 0.5 * field_rad
+        half_angle = self.cone_half_angle(field_rad)
         centre = home_camera_m + np.array([CONE_RANGE_M * math.cos(half_angle), 0.0, 0.0])
         return Trajectory("circular", period_s=self.period_s, centre_m=centre,
                           radius_m=CONE_RANGE_M * math.sin(half_angle))

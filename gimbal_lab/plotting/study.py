@@ -600,10 +600,9 @@ def plot_lens_radii(configs: dict, ax=None):
     ``configs`` maps a label to a :class:`gimbal_lab.config.TrackingConfig` (its camera's
     intrinsics and lens); rays in the horizontal plane are projected through each, so
     Brown–Conrady's tangential terms show as they act along x. A dot marks the cone trajectory's
-    angle (:data:`gimbal_lab.config.CONE_FIELD_FRACTION` of the half field) for configs on the cone.
+    angle (:meth:`gimbal_lab.config.Target.cone_half_angle`) for configs on the cone.
     """
     from ..camera import project
-    from ..config import CONE_FIELD_FRACTION
 
     if not configs:
         raise ValueError("no lenses to plot")
@@ -625,7 +624,7 @@ def plot_lens_radii(configs: dict, ax=None):
         colour = plt.cm.viridis(j / max(len(configs) - 1, 1))
         ax.plot(np.degrees(theta[keep]), radius[keep], color=colour, label=label)
         if config.target.trajectory == "cone":
-            beta = CONE_FIELD_FRACTION * 0.5 * config.camera.horizontal_field_rad
+            beta = config.target.cone_half_angle(config.camera.horizontal_field_rad)
             r = project(np.array([[math.sin(beta), 0.0, math.cos(beta)]]), K, lens)[0, 0] - K.cx
             ax.plot(math.degrees(beta), r, "o", color=colour, ms=5)
     ax.axhline(319.5, color="0.6", ls=":", lw=1)
