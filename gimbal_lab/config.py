@@ -1051,11 +1051,12 @@ class Estimator(_Part):
         """Whether the estimator and the outer loop know the lens (any strategy but "ignore")."""
         return self.lens_strategy != "ignore"
 
-    def build(self, camera: Camera, target: Target) -> "_Estimator":
+    def build(self, camera: Camera, target: Target, alt: bool = True) -> "_Estimator":
         """The detector and localiser of ``camera``'s frames of ``target``: image → (pixel centre,
         centre in the camera frame, the other localiser's centre); its ``partial`` says whether
-        the sphere's silhouette was cut."""
-        return _Estimator(self, camera, target)
+        the sphere's silhouette was cut. ``alt=False`` skips the other localiser (its centre is
+        None): the estimator's own pipeline alone, as the lens sweep times it."""
+        return _Estimator(self, camera, target, alt=alt)
 
 
 class _Estimator:
@@ -1073,7 +1074,7 @@ class _Estimator:
     camera's own image, where the outer loop measures it).
     """
 
-    def __init__(self, estimator: Estimator, camera: Camera, target: Target):
+    def __init__(self, estimator: Estimator, camera: Camera, target: Target, alt: bool = True):
         from . import detection
 
         self.partial = False
@@ -1092,6 +1093,8 @@ class _Estimator:
                 circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             self._methods = (circle, ellipse) if estimator.sphere_method == "circle" else (ellipse, circle)
+            if not alt:
+                self._methods = self._methods[:1]
         else:
             self.detector = detection.ArucoTracker(
                 K, marker_length_m=target.marker_length_m, refinement=estimator.aruco_refinement, distortion=known
@@ -1122,7 +1125,7 @@ class _Estimator:
                     return None
                 return None if p is None else np.asarray(p, float)
 
-            p, alt = (locate(m) for m in self._methods)
+            p, alt = [locate(m) for m in self._methods] + [None] * (2 - len(self._methods))
             return self._centre(det.center_px), p, alt
         pose = self.detector.detect(image).get(0)
         if pose is None:
