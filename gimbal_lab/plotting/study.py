@@ -769,6 +769,7 @@ def plot_lens_h2_limits(replicates, demand, fig=None):
             ax.errorbar(x + (j - 0.5) * 0.18, means, yerr=yerr, fmt="o", ms=5, capsize=3, color=colour, label=label)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xticks(x, lenses, fontsize=8)
+        ax.set_xlim(-0.5, len(lenses) - 0.5)
         ax.set_ylabel("passive − active error [mm]")
         ax.set_title(f"{_TARGET_TITLES.get(target, target)}: active's advantage (ignore the lens)", fontsize=9)
         ax.grid(alpha=0.3)
