@@ -296,6 +296,20 @@ def test_a_partial_table_checks_what_it_holds():
         oc.check_hypotheses(df[df["loop"] == "paper"])
 
 
+def test_a_filter_without_a_live_track_is_an_inconclusive_nees_row_not_a_missing_one():
+    df = make_replicates(designed_cells())
+    ca = (df.loop == "CA") & (df.target == "circle")
+    df.loc[ca, "nees_live"] = np.nan
+    df.loc[ca, "nees_live_frames"] = 0
+    df.loc[ca & (df.seed == 0), ["nees_live", "nees_live_frames"]] = (3.0, 50)  # one replicate has live frames
+    v = oc.check_hypotheses(df, make_pipelines(overrides={("none", "circle", "BP1"): np.nan}))
+    row = v[(v["id"] == "NEES") & (v["condition"] == "CA, circle")].iloc[0]
+    assert row["verdict"] == stats.INCONCLUSIVE and row["n"] == 1 and row["mean_a"] == 3.0
+    assert "only 1 replicate(s) have measured frames with a live track" in oc.verdict_reason(row)
+    bp = v[(v["id"] == "BP1") & (v["condition"] == "none, circle")].iloc[0]
+    assert bp["verdict"] == stats.INCONCLUSIVE and "frames both pipelines localised" in oc.verdict_reason(bp)
+
+
 def test_a_replicates_nees_pools_its_runs_live_frames_across_occlusions():
     df = make_replicates(designed_cells())
     cv = (df.loop == "CV") & (df.target == "circle")

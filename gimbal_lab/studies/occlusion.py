@@ -473,15 +473,23 @@ def check_hypotheses(replicates: pd.DataFrame, pipelines: pd.DataFrame | None = 
                     f"circle, {o}", "IMM", other, value(o, "circle", "IMM", "pointing_error_deg"),
                     value(o, "circle", other, "pointing_error_deg"), "deg", test=stats.non_inferior)
     if "nees_live" in replicates:
+        has_loop = lambda t, loop: bool(((replicates.target == t) & (replicates.loop == loop)).any())  # noqa: E731
         for t in TARGETS:
             for loop in FILTERS:
-                means = _pooled_nees(replicates, t, loop).dropna()
-                if len(means) < 2:
+                if not has_loop(t, loop):
                     continue
-                low, high = nees_band(len(means))
+                means = _pooled_nees(replicates, t, loop).dropna()
+                if len(means) < 2:  # no live track in the measured part of most replicates: no interval
+                    low, high = nees_band(max(len(means), 1))
+                    mean = float(means.mean()) if len(means) else math.nan
+                    result = stats.Verdict(stats.INCONCLUSIVE, "inside", mean, math.nan, mean, math.nan, math.nan,
+                                           math.nan, len(means), 0.95, math.nan)
+                else:
+                    low, high = nees_band(len(means))
+                    result = stats.inside_band(means.to_numpy(), low, high)
                 rows.append(dict(id="NEES", statement="the filter's NEES is consistent with χ²(3)",
                                  condition=f"{loop}, {t}", a=loop, b="χ²(3) band", unit="NEES", band_low=low,
-                                 band_high=high, result=stats.inside_band(means.to_numpy(), low, high)))
+                                 band_high=high, result=result))
     if pipelines is not None and len(pipelines):
         for o in OCCLUSIONS:
             for t in TARGETS:
@@ -507,10 +515,14 @@ def verdict_reason(row) -> str:
     if kind == "inside":
         if row.verdict == stats.HOLDS:
             return ""
+        if not math.isfinite(row.low):
+            return f"only {row.n} replicate(s) have measured frames with a live track: no interval"
         where = (f"lies above the band's top {row.band_high:.2f}" if row.low > row.band_high else
                  f"lies below the band's bottom {row.band_low:.2f}" if row.high < row.band_low else
                  f"overlaps an end of the band [{row.band_low:.2f}, {row.band_high:.2f}]")
         return f"the 95 % interval of the replicates' mean NEES, [{row.low:.2f}, {row.high:.2f}], {where}"
+    if row.unit == "m":
+        return _params.verdict_reason(row, "have frames both pipelines localised")
     return _params.verdict_reason(row, "have an occlusion episode on both sides")
 
 
