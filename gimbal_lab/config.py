@@ -725,7 +725,8 @@ class Target(_Part):
     trajectory : {"circular", "diagonal", "cone", "manoeuvring"}
         The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the lens sweep's
         cone: a circle about the home optical axis at :data:`CONE_RANGE_M` from the home camera,
-        :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis; or the
+        :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis (or
+        ``cone_half_angle_rad``); or the
         occlusion study's manoeuvring target (:class:`gimbal_lab.trajectories.ManoeuvringTarget`,
         its plan drawn from the run's seed).
     period_s : float
@@ -736,6 +737,11 @@ class Target(_Part):
         Sizes (0.10 m sphere; 0.30 m marker on a plate :data:`PLATE_TO_MARKER` as wide).
     occluders : tuple of gimbal_lab.scene.Occluder
         Boxes in the world that can hide the target (none by default).
+    cone_half_angle_rad : float or None
+        ``trajectory="cone"`` only: the cone's half-angle about the home axis, rad, in (0, π/2).
+        None (the default): :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field
+        (:meth:`cone_half_angle`). The lens sweep's in-limit cones set 40° (docs/design.md, "When
+        does a gimbal pay off?", Repairs).
     """
 
     kind: str = "sphere"
@@ -745,6 +751,7 @@ class Target(_Part):
     sphere_radius_m: float = 0.10
     marker_length_m: float = 0.30
     occluders: tuple = ()
+    cone_half_angle_rad: float | None = None
 
     _NAME = "target"
 
@@ -768,6 +775,21 @@ class Target(_Part):
             if not isinstance(occluder, Occluder):
                 raise TypeError(f"target.occluders must be Occluder objects, got {type(occluder).__name__}")
         self._set("occluders", occluders)
+        if self.cone_half_angle_rad is not None:
+            if self.trajectory != "cone":
+                raise ValueError(f"target.cone_half_angle_rad={self.cone_half_angle_rad!r} applies to target.trajectory "
+                                 f"'cone' only, got {self.trajectory!r}")
+            self._number("cone_half_angle_rad", low=0.0, high=0.5 * math.pi, low_open=True)
+            if self.cone_half_angle_rad >= 0.5 * math.pi:
+                raise ValueError(f"target.cone_half_angle_rad must be < π/2 (the cone lies ahead of the camera), got "
+                                 f"{self.cone_half_angle_rad!r}")
+
+    def cone_half_angle(self, field_rad: float) -> float:
+        """The cone's half-angle about the home axis, rad: ``cone_half_angle_rad``, or
+        :data:`CONE_FIELD_FRACTION` of half the camera's horizontal field ``field_rad`` (rad)."""
+        if self.cone_half_angle_rad is not None:
+            return self.cone_half_angle_rad
+        return CONE_FIELD_FRACTION * 0.5 * field_rad
 
     def path(self, *, seed: int, duration_s: float, home_camera_m, field_rad: float):
         """The motion of a run: the trajectory, built for the run's ``seed`` and ``duration_s``
@@ -777,7 +799,7 @@ class Target(_Part):
             return _manoeuvring_path(seed, duration_s)
         if self.trajectory != "cone":
             return Trajectory(self.trajectory, period_s=self.period_s)
-        half_angle = CONE_FIELD_FRACTION * 0.5 * field_rad
+        half_angle = self.cone_half_angle(field_rad)
         centre = home_camera_m + np.array([CONE_RANGE_M * math.cos(half_angle), 0.0, 0.0])
         return Trajectory("circular", period_s=self.period_s, centre_m=centre,
                           radius_m=CONE_RANGE_M * math.sin(half_angle))
@@ -845,7 +867,8 @@ class _OuterLoopPart:
 
 class _PaperLoop(_OuterLoopPart):
     """The paper's image loop as an outer-loop part: a new rate reference per measurement, held
-    between measurements; zero rate (hold) while the target is not detected."""
+    between measurements; while the target is not detected, the last one for ``pointing.coast_s``
+    (none by default), then zero rate (hold)."""
 
     def __init__(self, image_loop, kin, fps: float):
         self.image_loop, self.kin, self.dt_s = image_loop, kin, 1.0 / fps
@@ -913,7 +936,8 @@ def _paper(config, kin, pixel_lens) -> _OuterLoopPart:
 
     camera = config.camera
     image_loop = ImageLoop.ziegler_nichols(camera.intrinsics, camera.fps, camera.latency_frames, distortion=pixel_lens,
-                                           max_rate_rad_s=config.gimbal.max_joint_rate_rad_s)
+                                           max_rate_rad_s=config.gimbal.max_joint_rate_rad_s,
+                                           coast_s=config.pointing.coast_s or 0.0)
     return _PaperLoop(image_loop, kin, camera.fps)
 
 
@@ -1025,7 +1049,7 @@ class Pointing(_Part):
         body is still), see :mod:`gimbal_lab.mount`. Active: "paper", the paper's PI law on the
         pixel error with Ziegler–Nichols gains from the outer loop's own plant
         (:meth:`gimbal_lab.control.ImageLoop.ziegler_nichols`), holding the joints while the
-        target is lost; "predictive", the line-of-sight filter with feed-forward
+        target is lost (after ``coast_s`` of its last command, if set); "predictive", the line-of-sight filter with feed-forward
         (:class:`gimbal_lab.tracking.PredictiveLoop`, an extension); "filter", pointing where a
         filter on the target's world position predicts it, coasting through misses
         (:class:`gimbal_lab.tracking.FilterPointing`, the occlusion study). "predictive" and
@@ -1037,11 +1061,17 @@ class Pointing(_Part):
         An active loop's gimbal behind a MAVLink link (:class:`GimbalLink`); None: in-process,
         the loop reads the joints and sets the axes' references directly (the paper's
         simulation). A passive camera sends no command and takes none.
+    coast_s : float or None
+        ``kind="paper"`` only: how long the image loop repeats its last rate command after losing
+        the target before it holds the pose, s, >= 0 (:class:`gimbal_lab.control.ImageLoop`
+        ``coast_s``). None (the default) or 0: it holds at once. The occlusion study's blind
+        fallback uses 1.5 s (docs/design.md, "When does a gimbal pay off?", Repairs).
     """
 
     kind: str = "stabilised"
     filter: str | None = None
     link: GimbalLink | None = None
+    coast_s: float | None = None
 
     _NAME = "pointing"
 
@@ -1058,6 +1088,11 @@ class Pointing(_Part):
         if self.link is not None and not self.active:
             raise ValueError(f"pointing.link applies to the active kinds (paper, predictive, filter), got kind "
                              f"{self.kind!r}: a passive camera sends no command")
+        if self.coast_s is not None:
+            if self.kind != "paper":
+                raise ValueError(f"pointing.coast_s={self.coast_s!r} applies to pointing.kind 'paper' only, got kind "
+                                 f"{self.kind!r}")
+            self._number("coast_s", low=0.0, high=1e6)
 
     @property
     def mount(self) -> str:
@@ -1133,11 +1168,12 @@ class Estimator(_Part):
         """Whether the estimator and the outer loop know the lens (any strategy but "ignore")."""
         return self.lens_strategy != "ignore"
 
-    def build(self, camera: Camera, target: Target) -> "_Estimator":
+    def build(self, camera: Camera, target: Target, alt: bool = True) -> "_Estimator":
         """The detector and localiser of ``camera``'s frames of ``target``: image → (pixel centre,
         centre in the camera frame, the other localiser's centre); its ``partial`` says whether
-        the sphere's silhouette was cut."""
-        return _Estimator(self, camera, target)
+        the sphere's silhouette was cut. ``alt=False`` skips the other localiser (its centre is
+        None): the estimator's own pipeline alone, as the lens sweep times it."""
+        return _Estimator(self, camera, target, alt=alt)
 
 
 class _Estimator:
@@ -1155,7 +1191,7 @@ class _Estimator:
     camera's own image, where the outer loop measures it).
     """
 
-    def __init__(self, estimator: Estimator, camera: Camera, target: Target):
+    def __init__(self, estimator: Estimator, camera: Camera, target: Target, alt: bool = True):
         from . import detection
 
         self.partial = False
@@ -1174,6 +1210,8 @@ class _Estimator:
                 circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             self._methods = (circle, ellipse) if estimator.sphere_method == "circle" else (ellipse, circle)
+            if not alt:
+                self._methods = self._methods[:1]
         else:
             self.detector = detection.ArucoTracker(
                 K, marker_length_m=target.marker_length_m, refinement=estimator.aruco_refinement, distortion=known
@@ -1204,7 +1242,7 @@ class _Estimator:
                     return None
                 return None if p is None else np.asarray(p, float)
 
-            p, alt = (locate(m) for m in self._methods)
+            p, alt = [locate(m) for m in self._methods] + [None] * (2 - len(self._methods))
             return self._centre(det.center_px), p, alt
         pose = self.detector.detect(image).get(0)
         if pose is None:

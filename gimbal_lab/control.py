@@ -924,10 +924,12 @@ class ImageLoop:
     5. the joint rates are scaled down together so that none exceeds ``max_rate_rad_s``; the
        integral is frozen while that limit is active (anti-windup).
 
-    When the target is lost (``uv_px`` None): the joints hold (zero rate) for ``lost_hold_s``
-    with the integral frozen; after that, with ``return_home`` the joints return to q = 0 with
-    rate −home_gain·q (limited) and the integral is cleared; without it they keep holding. A
-    new detection resumes tracking at once.
+    When the target is lost (``uv_px`` None), the integral is frozen and the loop first coasts:
+    for ``coast_s`` after the loss (the updates whose interval of one ``dt_s`` ends by then) it
+    repeats its last joint-rate command, so the camera keeps turning as it did; 0 (the default)
+    skips this. Then the joints hold (zero rate) until ``lost_hold_s`` after the loss; after that,
+    with ``return_home`` the joints return to q = 0 with rate −home_gain·q (limited) and the
+    integral is cleared; without it they keep holding. A new detection resumes tracking at once.
 
     Parameters
     ----------
@@ -950,6 +952,24 @@ class ImageLoop:
         Gain of the return to home, 1/s, > 0.
     distortion : BrownConrady or None
         Lens model of the pixels passed in (None: pinhole).
+    coast_s : float
+        How long after losing the target the last command is repeated, s, >= 0 (0: hold at once).
+        The occlusion study's blind fallback (docs/design.md, "When does a gimbal pay off?",
+        Repairs) uses the target filters' coasting time, 1.5 s.
+
+    Examples
+    --------
+    A target right of centre, then lost: the loop repeats its last command for ``coast_s``, then
+    holds.
+
+    >>> K = Intrinsics.default()
+    >>> J = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    >>> loop = ImageLoop(K, kp_per_s=2.0, coast_s=0.1)
+    >>> last = loop.update((K.cx + 50.0, K.cy), 0.05, J, np.zeros(3))
+    >>> [bool(np.array_equal(loop.update(None, 0.05, J, np.zeros(3)), last)) for _ in range(3)]
+    [True, True, False]
+    >>> loop.state
+    'hold'
     """
 
     def __init__(
@@ -964,6 +984,7 @@ class ImageLoop:
         roll_gain_per_s: float = 2.0,
         home_gain_per_s: float = 1.0,
         distortion=None,
+        coast_s: float = 0.0,
     ):
         self.intrinsics = intrinsics
         self.kp_per_s = _check_real("kp_per_s", kp_per_s, low=0.0, low_open=True)
@@ -975,6 +996,7 @@ class ImageLoop:
         self.roll_gain_per_s = _check_real("roll_gain_per_s", roll_gain_per_s, low=0.0)
         self.home_gain_per_s = _check_real("home_gain_per_s", home_gain_per_s, low=0.0, low_open=True)
         self.distortion = distortion
+        self.coast_s = _check_real("coast_s", coast_s, low=0.0)
         self.reset()
 
     @classmethod
@@ -987,9 +1009,11 @@ class ImageLoop:
         return cls(intrinsics, kp_per_s=gains.kp, ki_per_s2=gains.ki, **kwargs)
 
     def reset(self) -> None:
-        """Clear the integral and the lost-target timer."""
+        """Clear the integral, the lost-target timer and the last command."""
         self.integral = np.zeros(2)
         self.lost_time_s = 0.0
+        self._lost_updates = 0
+        self.last_command = np.zeros(3)
         self.state = "tracking"
         self.error_px = np.full(2, np.nan)
         self.angle_error_rad = np.full(2, np.nan)
@@ -1041,6 +1065,7 @@ class ImageLoop:
             raise ValueError(f"uv_px must be a finite (2,) pixel or None, got {uv_px!r}")
         self.state = "tracking"
         self.lost_time_s = 0.0
+        self._lost_updates = 0
         cx, cy = self.intrinsics.cx, self.intrinsics.cy
         self.error_px = np.array([cx - uv[0], cy - uv[1]])
         theta = self.camera_angle_error(uv)
@@ -1050,6 +1075,7 @@ class ImageLoop:
         qdot, limited = self._limit(qdot)
         if not limited:
             self.integral = self.integral + theta * dt_s
+        self.last_command = qdot
         return qdot
 
     def _joint_rates(self, J, omega_xy, roll_rate):
@@ -1067,8 +1093,15 @@ class ImageLoop:
 
     def _lost(self, dt_s, q):
         self.lost_time_s += dt_s
+        self._lost_updates += 1
         self.error_px = np.full(2, np.nan)
         self.angle_error_rad = np.full(2, np.nan)
+        # the lost time is a sum of steps: allow its rounding, at most n·ε·sum after n additions
+        # (1.5 s of 1/30 s steps sums to 1.5 + 1.3e-15)
+        rounding_s = self._lost_updates * np.finfo(float).eps * self.lost_time_s
+        if self.lost_time_s <= self.coast_s + rounding_s:
+            self.state = "coast"
+            return self.last_command.copy()
         if self.lost_time_s <= self.lost_hold_s or not self.return_home:
             self.state = "hold"
             return np.zeros(3)

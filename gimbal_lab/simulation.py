@@ -101,7 +101,9 @@ FRAME_COLUMNS = {
     "visible_fraction": "fraction of the target's outline seen past the occluders (truth; 1 without occluders)",
     "partial": "sphere: the detected silhouette is cut (gimbal_lab.detection.SphereDetection.partial)",
     "filter_x_m, filter_y_m, filter_z_m": "pointing 'filter': the filter's predicted target centre at the truth "
-                                          "instant, world frame (NaN otherwise or before the track starts)",
+                                          "instant, world frame, while its track is live (NaN otherwise, before "
+                                          "the track starts and once its last accepted fix is older than the "
+                                          "coasting time: gimbal_lab.tracking.FilterPointing.live)",
     "filter_nees": "normalised error squared of that prediction against the truth (χ² with 3 degrees of freedom "
                    "for a consistent filter)",
     "at_limit_yaw, at_limit_roll, at_limit_pitch": "the joint sits at its mechanical stop (gimbal.kinematics' "

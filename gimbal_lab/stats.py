@@ -17,6 +17,9 @@ start phase, same sensor-noise seed), so the comparison is paired:
   5 % against a margin M > 0 (by default δ). **Holds** when the upper one-sided 95 % bound of
   mean(A − B) lies below M; **does not hold** when the lower one-sided 95 % bound lies above M;
   otherwise **inconclusive**.
+* **"mean X lies in [L, H]"** (:func:`inside_band`, one quantity, not a pair; a filter's NEES
+  against its χ² band): **holds** when the 95 % interval of the mean lies inside (L, H); **does
+  not hold** when it lies entirely above H or below L; otherwise **inconclusive**.
 
 Every verdict carries the p-value of the test that decides it, on one scale: a verdict is
 decisive at 95 % only if its p < 0.05 (see :class:`Verdict` for each rule's test). Many verdicts
@@ -57,6 +60,7 @@ __all__ = [
     "less_than",
     "equivalent",
     "non_inferior",
+    "inside_band",
     "mean_interval",
     "verdict_table",
     "holm",
@@ -82,7 +86,7 @@ class Verdict:
     Attributes
     ----------
     verdict : {"holds", "does not hold", "inconclusive"}
-    kind : {"less", "equivalent", "non-inferior"}
+    kind : {"less", "equivalent", "non-inferior", "inside"}
     mean_a, mean_b : float
         Means of the two compared quantities over the replicates.
     difference : float
@@ -401,6 +405,75 @@ def non_inferior(a, b, margin: float | None = None, alpha: float = 0.05, floor: 
         verdict, p = INCONCLUSIVE, _smallest_p(p_as_good, p_worse)
     return Verdict(verdict, "non-inferior", float(a.mean()), float(b.mean()), mean, low, high, margin, int(a.size),
                    confidence, p)
+
+
+def inside_band(values, band_low: float, band_high: float, confidence: float = 0.95) -> Verdict:
+    """Verdict on "the mean of X lies inside [band_low, band_high]" from replicate values of X.
+
+    With the two-sided ``confidence`` interval of the mean (Student t):
+
+    * **holds** when it lies inside (band_low, band_high);
+    * **does not hold** when it lies entirely above band_high or entirely below band_low;
+    * **inconclusive** otherwise.
+
+    Parameters
+    ----------
+    values : array_like, shape (n,), n >= 2
+        One value per replicate (not pairs), finite.
+    band_low, band_high : float
+        The band, band_low < band_high, finite.
+    confidence : float
+        Level of the interval, in (0, 1).
+
+    Returns
+    -------
+    Verdict
+        kind "inside"; ``mean_a`` the mean, ``difference`` the mean too (no second quantity:
+        ``mean_b`` and ``delta`` are NaN), ``low``, ``high`` the interval. ``p_value``, on the
+        scale of the other verdicts (decisive at ``confidence`` ⇔ p < 1 − confidence): when it
+        holds, twice the larger of the one-sided p of H0 mean ≤ band_low and of H0 mean ≥
+        band_high (the interval lies inside ⇔ both are below half the level); when it does not
+        hold, the two-sided t-test of mean = band_high (or band_low), the interval's own test of
+        lying beyond that end; when inconclusive, the smallest of these.
+
+    Notes
+    -----
+    docs/design.md, "When does a gimbal pay off?", Repairs: a filter's NEES is consistent with
+    χ²(3) when the interval of its replicate means lies inside the 95 % band of an average of N
+    χ²(3) values, [χ²₀.₀₂₅(3N)/N, χ²₀.₉₇₅(3N)/N].
+
+    Examples
+    --------
+    >>> inside_band([2.9, 3.1, 3.0, 3.2], 1.6, 4.7).verdict
+    'holds'
+    >>> inside_band([8.0, 9.0, 8.5], 1.6, 4.7).verdict
+    'does not hold'
+    """
+    if not (0.0 < confidence < 1.0):
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    band_low, band_high = float(band_low), float(band_high)
+    if not (math.isfinite(band_low) and math.isfinite(band_high) and band_low < band_high):
+        raise ValueError(f"the band must be finite with band_low < band_high, got [{band_low!r}, {band_high!r}]")
+    x = np.asarray(values, dtype=float).ravel()
+    if x.size < 2:
+        raise ValueError(f"an interval needs at least 2 values, got {x.size}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("values must be finite (a replicate without a value has no mean)")
+    mean, low, high = t_interval(x, confidence)
+    above_low = _one_sided_p(x, band_low, "greater")  # H0 mean <= band_low
+    below_high = _one_sided_p(x, band_high, "less")  # H0 mean >= band_high
+    p_inside = _doubled(max(above_low, below_high))
+    p_above = _doubled(_one_sided_p(x, band_high, "greater"))  # two-sided test of band_high, mean above it
+    p_below = _doubled(_one_sided_p(x, band_low, "less"))
+    if band_low < low and high < band_high:
+        verdict, p = HOLDS, p_inside
+    elif low > band_high:
+        verdict, p = DOES_NOT_HOLD, p_above
+    elif high < band_low:
+        verdict, p = DOES_NOT_HOLD, p_below
+    else:
+        verdict, p = INCONCLUSIVE, _smallest_p(p_inside, p_above, p_below)
+    return Verdict(verdict, "inside", mean, math.nan, mean, low, high, math.nan, int(x.size), confidence, p)
 
 
 def verdict_table(rows) -> pd.DataFrame:

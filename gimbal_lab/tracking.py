@@ -475,18 +475,27 @@ class FilterPointing:
             self.n_rejected += 1
         return accepted
 
+    def live(self, t_s: float) -> bool:
+        """Whether the track is live at ``t_s``: the filter has a track and its last accepted fix
+        is at most ``coast_s`` old (what :meth:`command` follows)."""
+        t = _check_real("t_s", t_s)
+        return bool(self.filter.initialised) and t - self.filter.t_s <= self.coast_s
+
     def prediction(self, t_s: float):
-        """The filter's estimate of the target at ``t_s``, for logging (estimate, NEES).
+        """The filter's estimate of the target at ``t_s`` while the track is live, for logging
+        (estimate, NEES).
 
         Returns
         -------
         tuple (ndarray, shape (3,), ndarray, shape (3, 3)) or None
-            World position, m, and its covariance, m²; None before the first fix. Given however
-            long the filter has coasted (``coast_s`` limits the pointing, not the estimate).
+            World position, m, and its covariance, m²; None before the first fix and once the last
+            accepted fix is more than ``coast_s`` old (:meth:`live`): a track the pointing no longer
+            follows is not logged (docs/design.md, "When does a gimbal pay off?": the filters' NEES
+            is judged over the frames with a live track).
         """
-        t = _check_real("t_s", t_s)
-        if not self.filter.initialised:
+        if not self.live(t_s):
             return None
+        t = float(t_s)
         mean, cov = self.filter.predict(t)
         return np.array(mean[:3], dtype=float), np.array(cov[:3, :3], dtype=float)
 

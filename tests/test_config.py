@@ -82,9 +82,15 @@ def test_the_defaults_are_the_paper_studys_fixed_parameters():
         (Target, dict(marker_length_m=-0.3), "target.marker_length_m"),
         (Target, dict(occluders=((1, 2, 3),)), "target.occluders"),
         (Target, dict(occluders=Occluder("pole", (1, 0, 1), (0.1, 0.1, 2))), "target.occluders"),
+        (Target, dict(cone_half_angle_rad=0.5), "target.cone_half_angle_rad=0.5 applies to target.trajectory 'cone'"),
+        (Target, dict(trajectory="cone", cone_half_angle_rad=0.0), "target.cone_half_angle_rad"),
+        (Target, dict(trajectory="cone", cone_half_angle_rad=math.pi / 2), "target.cone_half_angle_rad"),
         (Pointing, dict(kind="image"), "pointing.kind"),
         (Pointing, dict(kind="filter", filter="ekf"), "pointing.filter"),
         (Pointing, dict(kind="paper", filter="cv"), "pointing.filter='cv' applies to pointing.kind 'filter' only"),
+        (Pointing, dict(kind="filter", coast_s=1.5), "pointing.coast_s=1.5 applies to pointing.kind 'paper' only"),
+        (Pointing, dict(kind="paper", coast_s=-1.0), "pointing.coast_s"),
+        (Pointing, dict(kind="paper", coast_s="1.5"), "pointing.coast_s"),
         (Estimator, dict(sphere_method="hough"), "estimator.sphere_method"),
         (Estimator, dict(lens_strategy="undistorted"), "estimator.lens_strategy"),
         (Estimator, dict(lens_strategy=True), "estimator.lens_strategy"),
@@ -163,6 +169,31 @@ def test_the_old_passive_mount_rule_cannot_be_broken():
                      "paper": ("active", "active"), "predictive": ("active", "active"),
                      "filter": ("active", "active")}
     assert Pointing("filter").filter == "imm" and Pointing("stabilised").filter is None
+
+
+def test_the_paper_pointing_coasts_on_its_last_command_for_coast_s_then_holds():
+    """The outer-loop part the config builds: measurements reach the image loop, whose last command
+    is held between them and, once the target is lost, for ``pointing.coast_s`` (ImageLoop's own
+    logic is worked by hand in tests/test_control.py)."""
+    from gimbal_lab.config import Measurement
+
+    def outer_after(config, lost_frames):
+        kin = config.gimbal.kinematics
+        outer = config.pointing.build(config, kin, None)
+        K, q = config.camera.intrinsics, np.zeros(3)
+        seen = Measurement(0, 0.0, np.array([K.cx + 80.0, K.cy]), q, 3.0, np.zeros(3), np.eye(4))
+        outer.observe(seen, q)
+        tracking = outer.command(1 / 30, q)
+        for k in range(lost_frames):
+            outer.observe(seen._replace(frame=k + 1, uv_px=None), q)
+        return tracking, outer.command((lost_frames + 1) / 30, q)
+
+    coasting = TrackingConfig(pointing=Pointing("paper", coast_s=0.5))
+    tracking, later = outer_after(coasting, 15)  # 0.5 s at 30 frames/s: still its last command
+    assert np.linalg.norm(tracking) > 0.1 and np.array_equal(later, tracking)
+    assert np.all(outer_after(coasting, 16)[1] == 0.0)  # then it holds
+    assert np.all(outer_after(TrackingConfig(pointing=Pointing("paper")), 1)[1] == 0.0)  # the default holds at once
+    assert "coast_s" not in TrackingConfig(pointing=Pointing("paper")).to_dict()["pointing"]  # keys of before kept
 
 
 # ----------------------------------------------------------------------------------------------
@@ -441,6 +472,8 @@ _VARIED = [
                    gimbal=Gimbal(gyro_noise_rad_s_rthz=1e-4, rate_gains=(PIDGains(0.01),) * 3)),
     TrackingConfig(target=Target(trajectory="manoeuvring", occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
                    pointing=Pointing("filter", "ca")),
+    TrackingConfig(pointing=Pointing("paper", coast_s=1.5),
+                   target=Target(trajectory="cone", cone_half_angle_rad=math.radians(40.0))),
     TrackingConfig(gimbal=Gimbal(kinematics=GimbalKinematics(0.05, 0.02, ((-1, 1), (-0.5, 0.5), (-2, 1))),
                                  plants=tuple(AxisPlant.storm32(a) for a in ("yaw", "roll", "pitch")))),
 ]

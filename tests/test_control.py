@@ -356,6 +356,38 @@ def test_image_loop_lost_target_holds_then_returns_home():
     assert home.state == "tracking"
 
 
+def test_image_loop_coasts_on_its_last_command_then_holds_by_hand():
+    # J maps (yaw, roll, pitch) rates to camera (x, y, z): camera x ← yaw, y ← pitch, z ← roll, so
+    # the loop's 3 × 3 system is solved by hand: q̇ = (ω_x, −roll_gain·q_roll, ω_y)
+    K = Intrinsics.default()
+    J = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    q = np.array([0.0, 0.1, 0.0])
+    dt, kp, ki = 1 / 30, 2.0, 3.0
+    loop = ImageLoop(K, kp_per_s=kp, ki_per_s2=ki, coast_s=1.5, roll_gain_per_s=2.0)
+    # target 100 px right of centre: θ = (0, atan(100/fx)); after two frames the integral is 2·dt·θ_y
+    theta_y = math.atan(100.0 / K.fx)
+    loop.update((K.cx + 100.0, K.cy), dt, J, q)
+    last = loop.update((K.cx + 100.0, K.cy), dt, J, q)
+    expected = np.array([0.0, -2.0 * 0.1, kp * theta_y + ki * dt * theta_y])  # the integral lags one frame
+    assert last == pytest.approx(expected, rel=1e-12, abs=1e-15)
+    # lost for 1.5 s = 45 frames at 30 frames/s: the last command 45 times (whatever the pose now),
+    # then zero rate; the integral stays frozen throughout
+    integral = loop.integral.copy()
+    coasting = [loop.update(None, dt, J, q + 0.01 * k) for k in range(45)]
+    assert all(np.array_equal(c, last) for c in coasting) and loop.state == "coast"
+    assert np.all(loop.update(None, dt, J, q) == 0.0) and loop.state == "hold"
+    assert np.array_equal(loop.integral, integral)
+    # a detection resumes tracking with the frozen integral; a new loss coasts on the new command
+    resumed = loop.update((K.cx, K.cy - 50.0), dt, J, np.zeros(3))
+    theta_x = math.atan(50.0 / K.fy)  # target above centre: θ_x = −y = +atan(50/fy)
+    assert resumed == pytest.approx([kp * theta_x, 0.0, ki * integral[1]], rel=1e-12)
+    assert np.array_equal(loop.update(None, dt, J, np.zeros(3)), resumed)
+    # the default holds at once, as the paper's loop always did
+    hold = ImageLoop(K, kp_per_s=kp)
+    hold.update((K.cx + 100.0, K.cy), dt, J, q)
+    assert np.all(hold.update(None, dt, J, q) == 0.0) and hold.state == "hold"
+
+
 def test_image_loop_rate_limit():
     K = Intrinsics.default()
     loop = ImageLoop(K, kp_per_s=50.0, max_rate_rad_s=1.0)
@@ -366,7 +398,8 @@ def test_image_loop_rate_limit():
 
 @pytest.mark.parametrize(
     "kwargs, name",
-    [(dict(kp_per_s=0.0), "kp_per_s"), (dict(ki_per_s2=-1.0), "ki_per_s2"), (dict(max_rate_rad_s=float("nan")), "max_rate_rad_s"), (dict(lost_hold_s=-1.0), "lost_hold_s")],
+    [(dict(kp_per_s=0.0), "kp_per_s"), (dict(ki_per_s2=-1.0), "ki_per_s2"), (dict(max_rate_rad_s=float("nan")), "max_rate_rad_s"), (dict(lost_hold_s=-1.0), "lost_hold_s"),
+     (dict(coast_s=-0.1), "coast_s"), (dict(coast_s=math.inf), "coast_s")],
 )
 def test_image_loop_rejects_bad_parameters(kwargs, name):
     with pytest.raises(ValueError, match=name):

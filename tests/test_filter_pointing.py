@@ -198,8 +198,14 @@ def test_command_holds_before_the_first_fix_after_coasting_and_out_of_reach():
     loop.observe(0.0, [0.3, 0.1, 3.0], T_wc)  # off the axis: the loop turns
     assert np.any(loop.command(0.5, q) != 0)  # exactly coast_s: still following
     assert np.array_equal(loop.command(0.5 + 1e-9, q), np.zeros(3))  # past it: hold
-    p, P = loop.prediction(2.0)  # the estimate is still given for logging
+    p, P = loop.prediction(0.5)  # the live track's estimate is logged up to coast_s ...
     assert np.allclose(p, T_wc[:3, :3] @ [0.3, 0.1, 3.0] + T_wc[:3, 3]) and P.shape == (3, 3)
+    assert loop.live(0.5) and not loop.live(0.5 + 1e-9)
+    assert loop.prediction(0.5 + 1e-9) is None  # ... and not past it: the track is no longer live
+    loop.observe(0.6, None, T_wc)  # a missed frame does not revive it; a fix does
+    assert loop.prediction(0.6) is None
+    loop.observe(0.7, [0.3, 0.1, 3.0], T_wc)
+    assert loop.live(0.7) and loop.prediction(0.7) is not None
     # a prediction 60° above the horizon is out of the gimbal's reach (pitch ≤ 45°): hold
     up = T_WB[:3, 3] + KIN.centre_base + 3.0 * np.array([math.cos(math.pi / 3), 0.0, math.sin(math.pi / 3)])
     assert np.array_equal(_loop(_FixedState(up, [0.0, 0.0, 0.0])).command(0.0, q), np.zeros(3))

@@ -1,5 +1,7 @@
 """Plot helpers whose behaviour goes beyond drawing: what the interactive explorer shows."""
 
+import itertools
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -218,6 +220,58 @@ def test_lens_sweep_plots_one_line_per_strategy_and_rejects_unknown_values():
     plt.close(fig)
     with pytest.raises(ValueError, match="value must be one of"):
         plot_lens_sweep(_lens_summary(), "speed")
+
+
+def test_lens_error_cost_puts_each_pipeline_at_its_cpu_cost_and_its_methods_error():
+    from gimbal_lab.plotting.study import plot_lens_error_cost
+
+    summary = _lens_summary().assign(cone="field", alt_abs_error_m=0.004)
+    # an in-limit cone's row must not be drawn
+    summary = pd.concat([summary, summary.iloc[[0]].assign(cone="in-limit", mean_abs_error_m=9.0)], ignore_index=True)
+    rows = []
+    for r in summary[summary["cone"] == "field"].itertuples():
+        for method in (("circle", "exact") if r.target == "sphere" else ("PnP",)):
+            cpu = {"ignore": 1.0, "undistort": 1.5, "rectify": 3.0}[r.strategy] + (0.1 if method == "exact" else 0.0)
+            rows.append(dict(target=r.target, lens=r.lens, mode=r.mode, strategy=r.strategy, method=method,
+                             replicates=3, cpu_ms=cpu, cpu_ci_low_ms=cpu - 0.05, cpu_ci_high_ms=cpu + 0.05))
+    fig = plot_lens_error_cost(summary, pd.DataFrame(rows))
+    sphere_passive = fig.axes[0]
+    points = sorted((round(float(x), 6), round(float(y), 6)) for line in sphere_passive.lines
+                    if line.get_marker() in ("o", "s", "D") for x, y in zip(line.get_xdata(), line.get_ydata()))
+    # sphere, passive: 4 cells (pinhole ignore, fisheye ×3) × 2 methods; circle at 200 mm, exact at 4 mm
+    assert points == sorted([(1.0, 200.0), (1.1, 4.0), (1.0, 200.0), (1.1, 4.0), (1.5, 200.0), (1.6, 4.0),
+                             (3.0, 200.0), (3.1, 4.0)])
+    assert "sphere" in sphere_passive.get_title() and "passive" in sphere_passive.get_title()
+    plt.close(fig)
+    with pytest.raises(ValueError, match="must hold rows"):
+        plot_lens_error_cost(summary, pd.DataFrame())
+
+
+def test_lens_h2_limits_draws_each_cones_advantage_and_demand():
+    from gimbal_lab.plotting.study import plot_lens_h2_limits
+
+    rows = []
+    for target, lens, cone, seed in itertools.product(("sphere",), ("fisheye 120°", "fisheye 185°"),
+                                                      ("field", "in-limit"), range(3)):
+        gap = {"field": 0.050, "in-limit": 0.200}[cone] * (2 if lens == "fisheye 185°" else 1)
+        for mode in ("passive", "active"):
+            rows.append(dict(target=target, lens=lens, cone=cone, seed=seed, strategy="ignore", mode=mode,
+                             mean_abs_error_m=0.010 + (gap if mode == "passive" else 0.0) + 0.001 * seed))
+    demand = pd.DataFrame([dict(lens=lens, cone=cone, peak_yaw_rate_rad_s=rate, rate_limit_rad_s=3.0,
+                                stop_pct_sphere=stop)
+                           for lens, cone, rate, stop in (("fisheye 120°", "field", 2.8, 10.0),
+                                                          ("fisheye 120°", "in-limit", 2.6, 0.0),
+                                                          ("fisheye 185°", "field", 6.7, 60.0),
+                                                          ("fisheye 185°", "in-limit", 2.6, 0.0))])
+    fig = plot_lens_h2_limits(pd.DataFrame(rows), demand)
+    advantage = fig.axes[0]
+    means = {line.get_color(): [round(float(y), 6) for y in line.get_ydata()] for line in advantage.lines
+             if line.get_marker() == "o"}
+    # passive − active in mm, per fisheye: field 50, 100; in-limit 200, 400 (the seeds' offsets cancel)
+    assert sorted(means.values()) == [[50.0, 100.0], [200.0, 400.0]]
+    bars = sorted(round(p.get_height(), 6) for p in fig.axes[1].patches)
+    assert bars == [2.6, 2.6, 2.8, 6.7]
+    plt.close(fig)
 
 
 def test_saved_figure_paths_show_in_a_notebook_as_plain_paths(tmp_path):

@@ -262,6 +262,8 @@ def test_the_rectified_estimate_is_mapped_back_to_the_fisheyes_pixels(target):
 
     config = LensSweepStudy(replicates=2).config(target, "fisheye 120°", "rectify", "passive", 0)
     estimate = config.estimator.build(config.camera, config.target)
+    # the exact cone fit alone (alt=False, as the lens sweep times a pipeline): the same estimate, no other
+    exact_alone = config.estimator.replace(sphere_method="ellipse").build(config.camera, config.target, alt=False)
     T_world_cam = np.eye(4)
     T_world_cam[:3, :3] = GimbalKinematics.default().T_body_cam(np.zeros(3))[:3, :3]
     T_world_cam[:3, 3] = config.home_camera_m
@@ -271,8 +273,12 @@ def test_the_rectified_estimate_is_mapped_back_to_the_fisheyes_pixels(target):
             a, b = math.radians(off_deg), math.radians(azimuth_deg)
             p_cam = 3.0 * np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)])
             T_target = target_pose_at(T_world_cam @ np.append(p_cam, 1.0))
-            uv, p_est, p_alt = estimate(renderer.render(T_world_cam, T_target))
+            image = renderer.render(T_world_cam, T_target)
+            uv, p_est, p_alt = estimate(image)
             assert uv is not None, (target, off_deg)
+            if target == "sphere":
+                uv_alone, p_alone, none = exact_alone(image)
+                assert none is None and np.array_equal(uv_alone, uv) and np.array_equal(p_alone, p_alt)
             p_est = p_alt if target == "sphere" else p_est  # the exact cone fit (the circle's own bias aside)
             truth_px = project(p_cam, config.camera.intrinsics, config.camera.lens_model)[0]
             assert np.hypot(*(uv - truth_px)) < 1.5, (target, off_deg, uv, truth_px)

@@ -472,3 +472,67 @@ def test_holm_leaves_its_input_alone():
 def test_holm_rejects_bad_input(table, kwargs, error, match):
     with pytest.raises(error, match=match):
         stats.holm(table, **kwargs)
+
+
+# ----------------------------------------------------------------------------------------------
+# a mean inside a band (a filter's NEES against its χ² band)
+# ----------------------------------------------------------------------------------------------
+def _by_hand(x):
+    """mean and the 95 % interval half-width of 10 values, with the printed t table value."""
+    x = np.asarray(x, float)
+    return x.mean(), T975_DF9 * x.std(ddof=1) / math.sqrt(x.size)
+
+
+BAND = (1.6, 4.7)
+SPREAD = np.array([-1.5, -1.0, -0.5, -0.25, 0.0, 0.0, 0.25, 0.5, 1.0, 1.5]) * 0.2  # sd 0.158, half-width 0.113
+
+
+def test_inside_band_holds_when_the_interval_lies_inside():
+    x = 3.0 + SPREAD
+    v = stats.inside_band(x, *BAND)
+    mean, half = _by_hand(x)
+    assert (v.verdict, v.kind, v.n) == (stats.HOLDS, "inside", 10)
+    assert (v.low, v.high) == pytest.approx((mean - half, mean + half), rel=1e-12)
+    assert v.mean_a == v.difference == pytest.approx(3.0) and math.isnan(v.mean_b) and math.isnan(v.delta)
+    # p: twice the larger one-sided p; the nearer end (4.7 is 1.7 away, 1.6 is 1.4 away) decides
+    p_low = _sst.ttest_1samp(x, 1.6, alternative="greater").pvalue
+    p_high = _sst.ttest_1samp(x, 4.7, alternative="less").pvalue
+    assert v.p_value == pytest.approx(2 * max(p_low, p_high), rel=1e-12) and v.p_value < 0.05
+
+
+@pytest.mark.parametrize("centre, end", [(6.0, 4.7), (0.9, 1.6)])
+def test_inside_band_does_not_hold_when_the_interval_lies_beyond_an_end(centre, end):
+    x = centre + SPREAD
+    v = stats.inside_band(x, *BAND)
+    assert v.verdict == stats.DOES_NOT_HOLD
+    assert v.p_value == pytest.approx(_sst.ttest_1samp(x, end).pvalue, rel=1e-12) and v.p_value < 0.05
+
+
+@pytest.mark.parametrize("centre", [4.7, 1.62, 1.5])
+def test_inside_band_inconclusive_when_the_interval_holds_an_end(centre):
+    x = centre + SPREAD  # the interval (±0.113) reaches over an end of the band
+    v = stats.inside_band(x, *BAND)
+    assert v.verdict == stats.INCONCLUSIVE
+    p_inside = 2 * max(_sst.ttest_1samp(x, 1.6, alternative="greater").pvalue,
+                       _sst.ttest_1samp(x, 4.7, alternative="less").pvalue)
+    p_beyond = min(_sst.ttest_1samp(x, 4.7).pvalue if x.mean() > 4.7 else 1.0,
+                   _sst.ttest_1samp(x, 1.6).pvalue if x.mean() < 1.6 else 1.0)
+    assert v.p_value == pytest.approx(min(p_inside, p_beyond, 1.0), rel=1e-12)
+
+
+def test_inside_band_boundary_and_bad_input():
+    # an interval that ends exactly on the band's end is not inside it
+    x = 3.0 + SPREAD
+    _, low, high = stats.t_interval(x)
+    assert stats.inside_band(x, low, high + 1.0).verdict == stats.INCONCLUSIVE
+    assert stats.inside_band(x, low - 1.0, high).verdict == stats.INCONCLUSIVE
+    assert stats.inside_band(x, np.nextafter(low, -1.0), np.nextafter(high, 9.0)).verdict == stats.HOLDS
+    assert stats.inside_band([3.0, 3.0], *BAND).verdict == stats.HOLDS  # no spread: the mean alone
+    with pytest.raises(ValueError, match="band_low < band_high"):
+        stats.inside_band([3.0, 3.1], 4.7, 1.6)
+    with pytest.raises(ValueError, match="at least 2"):
+        stats.inside_band([3.0], *BAND)
+    with pytest.raises(ValueError, match="finite"):
+        stats.inside_band([3.0, math.nan], *BAND)
+    t = stats.holm(stats.verdict_table([dict(id="NEES", result=stats.inside_band(3.0 + SPREAD, *BAND))]))
+    assert t["verdict_holm"].tolist() == [stats.HOLDS]

@@ -47,14 +47,19 @@ def test_the_longest_occlusion_hides_the_arc_below_the_camera():
     assert oc.hidden_time_s(oc._occluder("panel", 0.75, config.home_camera_m)) == pytest.approx(hidden_s, abs=0.006)
 
 
-def test_grid_is_32_cells_times_replicates_with_shared_draws():
+def test_grid_is_40_cells_times_replicates_with_shared_draws():
     study = oc.OcclusionStudy(replicates=3)
     configs = oc.grid(study)
-    assert len(configs) == 32 * 3
+    assert len(configs) == 40 * 3
     assert len({c.key for c in configs}) == len(configs)
     for c in configs:
-        assert c.pointing.active and c.target.kind == "sphere" and c.revolutions == 3.0
+        loop = oc._names(c)[2]
+        assert c.pointing.active == (loop != "passive") and c.target.kind == "sphere" and c.revolutions == 3.0
         assert c.target.start_phase_s == replicate_phase_s(c.seed, 2.0)
+        # the blind fallback: the paper loop coasts on its last command for the filters' coasting time
+        assert c.pointing.coast_s == (1.5 if loop == "paper" else None)
+        assert c.pointing.kind == {"paper": "paper", "passive": "stabilised"}.get(loop, "filter")
+        assert c.estimator.sphere_method == "circle"  # the exact cone fit rides beside it (alt_*)
     cells = {oc._names(c) for c in configs}
     assert cells == set(itertools.product(oc.OCCLUSIONS, oc.TARGETS, oc.LOOPS))
     assert load("occlusion").Study is oc.OcclusionStudy
@@ -91,11 +96,11 @@ def test_episodes_by_hand():
     assert oc.episodes([False] * 4) == []
 
 
-def fake_run(hidden, detected, angle_deg, errors, loop="CV", seed=0, offscreen=()):
+def fake_run(hidden, detected, angle_deg, errors, loop="CV", seed=0, offscreen=(), nees=None, target="circle"):
     """3 frames per revolution × 3 revolutions (fps 1.5, period 2 s); the acquisition revolution is
     all visible and detected with a 1 m error and must not count."""
     study = oc.OcclusionStudy(replicates=2, fps=1.5)
-    config = study.config("panel 1.0 s", "circle", loop, seed)
+    config = study.config("panel 1.0 s", target, loop, seed)
     n = int(round(config.frames_per_revolution))
     hidden = np.r_[np.zeros(n, bool), hidden]
     detected = np.r_[np.ones(n, bool), detected]
@@ -109,8 +114,12 @@ def fake_run(hidden, detected, angle_deg, errors, loop="CV", seed=0, offscreen=(
         "true_cam_x_m": 3.0 * np.sin(theta), "true_cam_y_m": np.zeros(len(z)), "true_cam_z_m": z,
         "true_u_px": u, "true_v_px": np.full(len(z), 239.5), "true_offset_px": np.full(len(z), 7.0),
         "abs_error_m": np.r_[np.ones(n), np.where(detected[n:], errors, np.nan)],
+        "alt_detected": detected,
+        "alt_abs_error_m": np.r_[np.ones(n), np.where(detected[n:], 0.5 * np.asarray(errors, float), np.nan)],
         "filter_nees": np.r_[np.full(n, 50.0), np.full(len(z) - n, 3.0)],
     })
+    if nees is not None:
+        frames["filter_nees"] = np.r_[np.full(n, 50.0), nees]
     return TrackingResult(config=config, frames=frames)
 
 
@@ -130,6 +139,39 @@ def test_run_metrics_by_hand():
     assert m["detection_rate_pct"] == pytest.approx(50.0)
     assert m["hidden_s"] == pytest.approx(2 / 1.5 / 2)  # two hidden frames over two measured revolutions
     assert m["nees_visible"] == pytest.approx(3.0) and m["nees_hidden"] == pytest.approx(3.0)
+    assert m["exact_detection_rate_pct"] == pytest.approx(50.0)
+    assert m["exact_error_m"] == pytest.approx(0.035 / 3)  # half the circle's 0.01, 0.02, 0.04
+
+
+def test_nees_counts_the_measured_frames_with_a_live_track_only():
+    # NaN: no live track (the frame table logs a prediction for a live track only); acquisition's 50 excluded
+    run = fake_run(hidden=[0] * 6, detected=[1] * 6, angle_deg=[1] * 6, errors=[0.01] * 6,
+                   nees=[2.0, np.nan, 4.0, 9.0, np.nan, 1.0])
+    m = oc.run_metrics(run)
+    assert m["nees_live"] == pytest.approx(4.0) and m["nees_live_frames"] == 4
+
+
+def test_the_nees_band_is_that_of_an_average_of_n_chi2_3_values():
+    # printed χ² tables (e.g. NIST/SEMATECH e-Handbook 1.3.6.7.4): χ²(3) 0.216 and 9.348; χ²(30) 16.791, 46.979
+    assert oc.nees_band(1) == pytest.approx((0.2158, 9.3484), abs=5e-4)
+    assert oc.nees_band(10) == pytest.approx((16.791 / 10, 46.979 / 10), abs=5e-4)
+    with pytest.raises(ValueError, match="n"):
+        oc.nees_band(0)
+
+
+def test_bp_pipelines_compare_the_paper_loop_with_the_passive_camera_on_the_frames_both_localised():
+    active = fake_run(hidden=[0] * 6, detected=[1, 1, 0, 1, 1, 1], angle_deg=[1] * 6,
+                      errors=[0.01, 0.02, 0.03, 0.04, 0.05, 0.06], loop="paper")
+    passive = fake_run(hidden=[0] * 6, detected=[1, 1, 1, 1, 0, 0], angle_deg=[1] * 6,
+                       errors=[0.2, 0.2, 0.2, 0.4, 0.2, 0.2], loop="passive")
+    p = oc.pipeline_table([active, passive]).set_index("claim")
+    assert list(p.index) == ["BP1", "BP2"] and (p["occlusion"] == "panel 1.0 s").all()
+    # frames both localised: 0, 1, 3 (the acquisition revolution excluded)
+    assert p.loc["BP1", "common_rate_pct"] == pytest.approx(50.0)
+    assert p.loc["BP1", "a_error_m"] == pytest.approx(0.07 / 3)  # the paper loop's circle method
+    assert p.loc["BP2", "a_error_m"] == pytest.approx(0.035 / 3)  # its exact cone fit (half, by construction)
+    assert p.loc["BP1", "b_error_m"] == pytest.approx(0.4 / 3)  # the passive camera's exact fit
+    assert p.loc["BP1", "a_rate_pct"] == pytest.approx(500 / 6) and p.loc["BP1", "b_rate_pct"] == pytest.approx(400 / 6)
 
 
 def test_a_run_that_never_reacquires_leaves_its_reacquisition_unmeasured():
@@ -152,10 +194,10 @@ def test_a_config_outside_the_study_is_refused():
 # hypotheses on hand-built replicate tables
 # ----------------------------------------------------------------------------------------------
 def designed_cells():
-    """Per cell: (pointing error °, reappearance error °), shaped so that H1 and H2 hold and H2c does not."""
+    """Per cell: (pointing error °, reappearance error °), shaped so that every hypothesis holds."""
     cells = {}
     for occlusion, target, loop in itertools.product(oc.OCCLUSIONS, oc.TARGETS, oc.LOOPS):
-        pointing = {"paper": 6.0, "CV": 4.0, "CA": 4.0, "IMM": 3.0}[loop]
+        pointing = {"paper": 6.0, "CV": 4.0, "CA": 4.0, "IMM": 3.0, "passive": 8.0}[loop]
         if target == "circle" and loop in ("CV", "CA", "IMM"):
             pointing = 3.0  # IMM no worse on the circle
         reappear = 20.0 if loop == "paper" else 5.0
@@ -168,7 +210,9 @@ def make_replicates(cells, overrides=None):
     for (occlusion, target, loop), (pointing, reappear) in cells.items():
         for seed in SEEDS:
             rows.append(dict(occlusion=occlusion, target=target, loop=loop, seed=seed, episodes=2,
-                             pointing_error_deg=pointing + JITTER[seed], reappear_error_deg=reappear + JITTER[seed]))
+                             pointing_error_deg=pointing + JITTER[seed], reappear_error_deg=reappear + JITTER[seed],
+                             nees_live=3.0 + 100 * JITTER[seed] if loop in oc.FILTERS else np.nan,
+                             nees_live_frames=100 if loop in oc.FILTERS else 0))
     df = pd.DataFrame(rows)
     for (occlusion, target, loop, column), value in (overrides or {}).items():
         sel = (df.occlusion == occlusion) & (df.target == target) & (df.loop == loop)
@@ -176,31 +220,64 @@ def make_replicates(cells, overrides=None):
     return df
 
 
+def make_pipelines(gap_m=0.010, overrides=None):
+    """BP1 and BP2 per occlusion and target: a (the paper loop) below b (the passive camera) by ``gap_m``."""
+    rows = []
+    for occlusion, target, (claim, (a, b)), seed in itertools.product(oc.OCCLUSIONS, oc.TARGETS,
+                                                                     oc.BP_CLAIMS.items(), SEEDS):
+        gap = (overrides or {}).get((occlusion, target, claim), gap_m)
+        rows.append(dict(occlusion=occlusion, target=target, seed=seed, claim=claim, a=a, b=b,
+                         a_error_m=0.030 - gap + JITTER[seed] / 10, b_error_m=0.030, common_rate_pct=90.0,
+                         a_rate_pct=95.0, b_rate_pct=92.0))
+    return pd.DataFrame(rows)
+
+
 def test_designed_replicates_give_the_designed_verdicts():
-    v = oc.check_hypotheses(make_replicates(designed_cells()))
-    assert list(dict.fromkeys(v["id"])) == ["H1", "H2", "H2c"]
-    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H2c")] == [6, 8, 8]
-    assert (v.loc[v["id"] != "H2c", "verdict"] == stats.HOLDS).all()
-    assert (v.loc[v["id"] == "H2c", "verdict"] == stats.DOES_NOT_HOLD).all()  # no effect: IMM does not lose
-    assert set(v["unit"]) == {"deg"}
+    v = oc.check_hypotheses(make_replicates(designed_cells()), make_pipelines())
+    assert list(dict.fromkeys(v["id"])) == ["H1", "H2", "H2c", "NEES", "BP1", "BP2"]
+    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H2c", "NEES", "BP1", "BP2")] == [6, 8, 8, 6, 8, 8]
+    assert (v["verdict"] == stats.HOLDS).all(), v[v["verdict"] != stats.HOLDS]
+    assert (v["verdict_holm"] == stats.HOLDS).all() and (v["p_holm"] >= v["p_value"]).all()
+    h2c = v[v["id"] == "H2c"]
+    assert (h2c["kind"] == "non-inferior").all() and (h2c["a"] == "IMM").all()
+    assert (h2c["delta"] >= oc.ANGLE_FLOOR_DEG).all()
+    nees = v[v["id"] == "NEES"]
+    assert (nees["kind"] == "inside").all()
+    assert nees["band_low"].to_numpy() == pytest.approx(np.full(6, oc.nees_band(6)[0]))
+    assert set(v["unit"]) == {"deg", "NEES", "m"}
 
 
 def test_each_outcome_is_reported_where_it_was_built():
     over = {
         ("panel 1.0 s", "circle", "CA", "reappear_error_deg"): 40.0,  # CA worse than holding: the opposite
         ("panel 1.0 s", "manoeuvring", "CV", "reappear_error_deg"): 20.0 + 0.01,  # no effect
-        ("pole 0.2 s", "circle", "IMM", "pointing_error_deg"): 5.0,  # the IMM loses on the circle
+        ("pole 0.2 s", "circle", "IMM", "pointing_error_deg"): 5.0,  # the IMM loses on the circle by 2° (δ 0.3°)
         ("none", "manoeuvring", "IMM", "pointing_error_deg"): 4.0,  # no better than CV without occluders
     }
-    v = oc.check_hypotheses(make_replicates(designed_cells(), over)).set_index(["id", "condition", "a", "b"])
+    df = make_replicates(designed_cells(), over)
+    # NEES: CA overconfident on the manoeuvring target (9 on every run, far above the band's top 4.7 at N = 6)
+    df.loc[(df.loop == "CA") & (df.target == "manoeuvring"), "nees_live"] = 9.0 + np.tile(100 * JITTER, 4)
+    # ... and IMM on the circle straddles the band's top
+    df.loc[(df.loop == "IMM") & (df.target == "circle"), "nees_live"] = np.tile(4.0 + 2.0 * np.sign(JITTER), 4)
+    v = oc.check_hypotheses(df, make_pipelines(overrides={("none", "circle", "BP2"): -0.010}))
+    v = v.set_index(["id", "condition", "a", "b"])
     assert v.loc[("H1", "circle, panel 1.0 s", "CA", "paper"), "verdict"] == stats.DOES_NOT_HOLD
     assert v.loc[("H1", "circle, panel 1.0 s", "CA", "paper"), "low"] > 0
     assert v.loc[("H1", "manoeuvring, panel 1.0 s", "CV", "paper"), "verdict"] == stats.DOES_NOT_HOLD
-    assert v.loc[("H2c", "circle, pole 0.2 s", "CV", "IMM"), "verdict"] == stats.HOLDS
+    ni = v.loc[("H2c", "circle, pole 0.2 s", "IMM", "CV")]
+    assert ni["verdict"] == stats.DOES_NOT_HOLD and ni["low"] > ni["delta"]
+    assert v.loc[("H2c", "circle, pole 0.2 s", "IMM", "CA"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("H2c", "circle, none", "IMM", "CV"), "verdict"] == stats.HOLDS
     assert v.loc[("H2", "manoeuvring, none", "IMM", "CV"), "verdict"] == stats.DOES_NOT_HOLD
     assert v.loc[("H2", "manoeuvring, none", "IMM", "CA"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("NEES", "CA, manoeuvring", "CA", "χ²(3) band"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("NEES", "IMM, circle", "IMM", "χ²(3) band"), "verdict"] == stats.INCONCLUSIVE
+    assert v.loc[("NEES", "CV, circle", "CV", "χ²(3) band"), "verdict"] == stats.HOLDS
+    assert v.loc[("BP2", "none, circle", "active (best)", "best passive"), "verdict"] == stats.DOES_NOT_HOLD
+    assert v.loc[("BP1", "none, circle", "active (paper)", "best passive"), "verdict"] == stats.HOLDS
     text = oc.hypotheses_markdown(v.reset_index())
     assert "the opposite is measured" in text and "no effect worth the name" in text
+    assert "lies above the band's top" in text and "worse than CV by more than the margin" in text
 
 
 def test_missing_episodes_are_inconclusive_with_their_reason():
@@ -214,6 +291,34 @@ def test_missing_episodes_are_inconclusive_with_their_reason():
 def test_a_partial_table_checks_what_it_holds():
     df = make_replicates(designed_cells())
     v = oc.check_hypotheses(df[df["target"] == "manoeuvring"])
-    assert set(v["id"]) == {"H1", "H2"}
+    assert set(v["id"]) == {"H1", "H2", "NEES"}
     with pytest.raises(ValueError, match="none of the cells"):
         oc.check_hypotheses(df[df["loop"] == "paper"])
+
+
+def test_a_filter_without_a_live_track_is_an_inconclusive_nees_row_not_a_missing_one():
+    df = make_replicates(designed_cells())
+    ca = (df.loop == "CA") & (df.target == "circle")
+    df.loc[ca, "nees_live"] = np.nan
+    df.loc[ca, "nees_live_frames"] = 0
+    df.loc[ca & (df.seed == 0), ["nees_live", "nees_live_frames"]] = (3.0, 50)  # one replicate has live frames
+    v = oc.check_hypotheses(df, make_pipelines(overrides={("none", "circle", "BP1"): np.nan}))
+    row = v[(v["id"] == "NEES") & (v["condition"] == "CA, circle")].iloc[0]
+    assert row["verdict"] == stats.INCONCLUSIVE and row["n"] == 1 and row["mean_a"] == 3.0
+    assert "only 1 replicate(s) have measured frames with a live track" in oc.verdict_reason(row)
+    bp = v[(v["id"] == "BP1") & (v["condition"] == "none, circle")].iloc[0]
+    assert bp["verdict"] == stats.INCONCLUSIVE and "frames both pipelines localised" in oc.verdict_reason(bp)
+
+
+def test_a_replicates_nees_pools_its_runs_live_frames_across_occlusions():
+    df = make_replicates(designed_cells())
+    cv = (df.loop == "CV") & (df.target == "circle")
+    # per seed: 300 live frames at NEES 2 without occluders, 100 at 6 behind the panel, none elsewhere:
+    # (300·2 + 100·6) / 400 = 3, the frames' mean (not the runs' mean 4, nor either run's value)
+    df.loc[cv, "nees_live"] = np.nan
+    df.loc[cv, "nees_live_frames"] = 0
+    df.loc[cv & (df.occlusion == "none"), ["nees_live", "nees_live_frames"]] = (2.0, 300)
+    df.loc[cv & (df.occlusion == "panel 1.0 s"), ["nees_live", "nees_live_frames"]] = (6.0, 100)
+    df.loc[cv & (df.occlusion == "panel 1.0 s") & (df.seed == 0), "nees_live"] = 6.0 + 4e-3
+    row = oc.check_hypotheses(df).set_index(["id", "condition"]).loc[("NEES", "CV, circle")]
+    assert row["mean_a"] == pytest.approx(3.0 + 1e-3 / 6, abs=1e-12) and row["n"] == 6

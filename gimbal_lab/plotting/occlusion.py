@@ -7,7 +7,7 @@ import numpy as np
 
 __all__ = ["plot_occlusion_metrics", "plot_occlusion_timelines", "plot_occluder_views"]
 
-_LOOP_COLOURS = {"paper": "tab:gray", "CV": "tab:blue", "CA": "tab:green", "IMM": "tab:red"}
+_LOOP_COLOURS = {"paper": "tab:gray", "CV": "tab:blue", "CA": "tab:green", "IMM": "tab:red", "passive": "tab:purple"}
 _METRICS = {
     "pointing_error_deg": ("pointing error, every frame [°]", 1.0),
     "hidden_pointing_deg": ("pointing error while hidden [°]", 1.0),

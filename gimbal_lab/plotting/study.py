@@ -13,7 +13,7 @@ from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
            "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions", "plot_lens_sweep",
-           "plot_lens_costs", "plot_lens_views", "plot_lens_radii"]
+           "plot_lens_costs", "plot_lens_views", "plot_lens_radii", "plot_lens_error_cost", "plot_lens_h2_limits"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
@@ -157,8 +157,9 @@ def plot_forest(verdicts, ax=None):
     """Forest plot of the claims: each paired difference a − b with its interval, in units of δ.
 
     Every row is one checked condition; the shaded band is ±δ (the smallest effect of interest,
-    or the equivalence margin for "≈" claims), so a claim "a < b" holds where the interval lies
-    left of 0 and its point left of −1. Colours give the verdict; the right margin prints the
+    or the equivalence margin for "≈" claims, or the non-inferiority margin for "≤" claims), so a
+    claim "a < b" holds where the interval lies left of 0 and its point left of −1, and "a ≤ b"
+    (at least as good) where the interval (90 %: one-sided 95 % bounds) ends left of +1. Colours give the verdict; the right margin prints the
     difference and interval in mm, or in the row's ``unit`` when the table has that column
     ("m", printed in mm, or "px"). A row without an interval (too few replicates) shows its point.
     """
@@ -179,14 +180,18 @@ def plot_forest(verdicts, ax=None):
         if sel.any():
             ax.errorbar(point[sel], y[sel], xerr=np.vstack((point[sel] - low[sel], high[sel] - point[sel])),
                         fmt="o", color=colour, ms=4, capsize=2, label=verdict)
-    labels = [f"{r.id} {r.condition}: {r.a} {'≈' if r.kind == 'equivalent' else '<'} {r.b}" for r in verdicts.itertuples()]
+    relation = {"equivalent": "≈", "non-inferior": "≤"}  # "≤": at least as good (non-inferiority)
+    labels = [f"{r.id} {r.condition}: {r.a} {relation.get(r.kind, '<')} {r.b}" for r in verdicts.itertuples()]
     ax.set_yticks(y, labels, fontsize=7)
     ax.set_xscale("symlog", linthresh=2.0)
     reach = float(np.nanmax(np.abs(np.concatenate((low, high, [2.0])))))
     ax.set_xlim(-1.6 * reach, 1.6 * reach)
     ticks = [t for t in (-1000, -100, -10, -1, 0, 1, 10, 100, 1000) if abs(t) <= 1.6 * reach]
     ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
-    ax.set_xlabel("(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1)")
+    label = "(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1"
+    if (verdicts["kind"] == "non-inferior").any():
+        label += "; “a ≤ b”, at least as good, where the interval ends left of +1"
+    ax.set_xlabel(label + ")")
     units = verdicts["unit"] if "unit" in verdicts else ["m"] * n
     for yi, r, unit in zip(y, verdicts.itertuples(), units):
         k, name = (1000.0, "mm") if unit == "m" else (1.0, unit)
@@ -473,9 +478,12 @@ def plot_lens_sweep(summary, value: str = "mean_abs_error_m", fig=None):
         pinhole runs "ignore" only, so the other strategies start at the first distorted lens.
     """
     labels = {"mean_abs_error_m": "|d_est − d_true| [mm]", "common_abs_error_m": "error, common frames [mm]",
+              "alt_abs_error_m": "exact cone fit |d_est − d_true| [mm]",
               "detection_rate_pct": "detection rate [%]", "estimate_ms": "detection + localisation [ms/frame]"}
     if value not in labels:
         raise ValueError(f"value must be one of {tuple(labels)}, got {value!r}")
+    if "cone" in summary:  # the sweep's own cones; the fisheyes' in-limit cones have a figure of their own
+        summary = summary[summary["cone"] == "field"]
     targets = list(dict.fromkeys(summary["target"]))
     if not targets:
         raise ValueError("summary holds no rows")
@@ -496,8 +504,10 @@ def plot_lens_sweep(summary, value: str = "mean_abs_error_m", fig=None):
                 xs = np.array([x[lens] for lens in df["lens"]]) + (j - 1) * 0.08
                 ys = k * df[value].to_numpy(float)
                 yerr = None
-                if value == "mean_abs_error_m":
-                    yerr = np.vstack((ys - k * df["ci_low_m"].to_numpy(float), k * df["ci_high_m"].to_numpy(float) - ys))
+                if value in ("mean_abs_error_m", "alt_abs_error_m"):
+                    prefix = "alt_" if value == "alt_abs_error_m" else ""
+                    yerr = np.vstack((ys - k * df[f"{prefix}ci_low_m"].to_numpy(float),
+                                      k * df[f"{prefix}ci_high_m"].to_numpy(float) - ys))
                     yerr = np.where(np.isfinite(yerr), np.clip(yerr, 0.0, None), 0.0)
                     yerr[0] = np.minimum(yerr[0], 0.95 * np.nan_to_num(ys, nan=1.0))  # keep the log axis positive
                 ax.errorbar(xs, ys, yerr=yerr, fmt="o-", ms=4, capsize=2, color=_STRATEGY_COLOURS[strategy],
@@ -506,7 +516,7 @@ def plot_lens_sweep(summary, value: str = "mean_abs_error_m", fig=None):
             fisheyes = [x[lens] for lens in lenses if families.get(lens) == "fisheye"]
             if fisheyes and min(fisheyes) > 0:
                 ax.axvline(min(fisheyes) - 0.5, color="0.5", ls=":", lw=1)
-            if value == "mean_abs_error_m":
+            if value in ("mean_abs_error_m", "alt_abs_error_m"):
                 ax.set_yscale("log")
             if value == "detection_rate_pct":
                 ax.set_ylim(-3, 103)
@@ -528,6 +538,8 @@ def plot_lens_costs(summary, fig=None):
     Right: rendering per frame, passive (a still camera) and active (a turning one), where the
     fisheyes' cube map shows. All are wall times measured inside the runs.
     """
+    if "cone" in summary:
+        summary = summary[summary["cone"] == "field"]
     if summary.empty:
         raise ValueError("summary holds no rows")
     lenses = list(dict.fromkeys(summary["lens"]))
@@ -600,10 +612,9 @@ def plot_lens_radii(configs: dict, ax=None):
     ``configs`` maps a label to a :class:`gimbal_lab.config.TrackingConfig` (its camera's
     intrinsics and lens); rays in the horizontal plane are projected through each, so
     Brown–Conrady's tangential terms show as they act along x. A dot marks the cone trajectory's
-    angle (:data:`gimbal_lab.config.CONE_FIELD_FRACTION` of the half field) for configs on the cone.
+    angle (:meth:`gimbal_lab.config.Target.cone_half_angle`) for configs on the cone.
     """
     from ..camera import project
-    from ..config import CONE_FIELD_FRACTION
 
     if not configs:
         raise ValueError("no lenses to plot")
@@ -625,7 +636,7 @@ def plot_lens_radii(configs: dict, ax=None):
         colour = plt.cm.viridis(j / max(len(configs) - 1, 1))
         ax.plot(np.degrees(theta[keep]), radius[keep], color=colour, label=label)
         if config.target.trajectory == "cone":
-            beta = CONE_FIELD_FRACTION * 0.5 * config.camera.horizontal_field_rad
+            beta = config.target.cone_half_angle(config.camera.horizontal_field_rad)
             r = project(np.array([[math.sin(beta), 0.0, math.cos(beta)]]), K, lens)[0, 0] - K.cx
             ax.plot(math.degrees(beta), r, "o", color=colour, ms=5)
     ax.axhline(319.5, color="0.6", ls=":", lw=1)
@@ -638,3 +649,149 @@ def plot_lens_radii(configs: dict, ax=None):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, frameon=False, loc="lower right")
     return ax.figure
+
+
+_METHOD_MARKERS = {"circle": "o", "exact": "s", "PnP": "D"}
+
+
+def plot_lens_error_cost(summary, costs, fig=None):
+    """Error against CPU cost per frame for every pipeline of the lens sweep (field cones).
+
+    Parameters
+    ----------
+    summary : DataFrame
+        :func:`gimbal_lab.studies.lens_sweep.summary_table` (the error on each run's own
+        localisations: ``mean_abs_error_m`` for the circle method or PnP, ``alt_abs_error_m`` for
+        the sphere's exact cone fit).
+    costs : DataFrame
+        :func:`gimbal_lab.studies.lens_sweep.cost_summary` (CPU ms per frame, measured apart from
+        the runs, with its 95 % interval over replicates).
+
+    Returns
+    -------
+    Figure
+        Rows: targets; columns: passive, active. One point per lens, strategy (colour) and method
+        (marker: circle ○, exact cone fit □, PnP ◇), the cost's interval as a horizontal bar; the
+        error axis is logarithmic. Lens names label the "ignore" points.
+    """
+    if summary is None or len(summary) == 0 or costs is None or len(costs) == 0:
+        raise ValueError("summary and costs must hold rows")
+    if "cone" in summary:
+        summary = summary[summary["cone"] == "field"]
+    targets = [t for t in _TARGET_TITLES if (costs["target"] == t).any()]
+    modes = [m for m in _MODE_COLOURS if (costs["mode"] == m).any()]
+    if fig is None:
+        fig = plt.figure(figsize=(5.4 * len(modes) + 1.6, 3.9 * len(targets)), layout="constrained")
+    axes = fig.subplots(len(targets), len(modes), squeeze=False)
+    cell = summary.set_index(["target", "lens", "strategy", "mode"])
+    for r, target in enumerate(targets):
+        for c, mode in enumerate(modes):
+            ax = axes[r, c]
+            sel = costs[(costs["target"] == target) & (costs["mode"] == mode)]
+            for row in sel.itertuples():
+                key = (target, row.lens, row.strategy, mode)
+                if key not in cell.index:
+                    continue
+                error_m = cell.loc[key, "alt_abs_error_m" if row.method == "exact" else "mean_abs_error_m"]
+                if not np.isfinite(error_m):
+                    continue
+                xerr = np.array([[row.cpu_ms - row.cpu_ci_low_ms], [row.cpu_ci_high_ms - row.cpu_ms]])
+                colour = _STRATEGY_COLOURS[row.strategy]
+                filled = row.method != "circle"
+                ax.errorbar(row.cpu_ms, 1000.0 * error_m, xerr=np.nan_to_num(np.clip(xerr, 0.0, None)),
+                            fmt=_METHOD_MARKERS[row.method], ms=5, capsize=2, color=colour,
+                            mfc=colour if filled else "white")
+                if row.strategy == "ignore" and row.method != "circle":
+                    ax.annotate(row.lens, (row.cpu_ms, 1000.0 * error_m), fontsize=6, xytext=(3, 2),
+                                textcoords="offset points", color="0.3")
+            ax.set_yscale("log")
+            ax.grid(alpha=0.3, which="both")
+            ax.set_title(f"{_TARGET_TITLES.get(target, target)}, {mode}", fontsize=9)
+            ax.set_xlabel("CPU time per frame, detection + localisation [ms]")
+            if c == 0:
+                ax.set_ylabel("|d_est − d_true| [mm]")
+    handles = [plt.Line2D([], [], color=colour, marker="s", ls="", label=strategy)
+               for strategy, colour in _STRATEGY_COLOURS.items()]
+    handles += [plt.Line2D([], [], color="k", marker=marker, ls="", mfc="white" if method == "circle" else "k",
+                           label={"circle": "circle method", "exact": "exact cone fit", "PnP": "PnP"}[method])
+                for method, marker in _METHOD_MARKERS.items() if (costs["method"] == method).any()]
+    fig.legend(handles=handles, loc="outside right upper", fontsize=8, frameon=False)
+    return fig
+
+
+def plot_lens_h2_limits(replicates, demand, fig=None):
+    """H2 on the fisheyes: active's advantage on the in-limit and the field (over-limit) cones,
+    beside what each cone asks of the gimbal.
+
+    Parameters
+    ----------
+    replicates : DataFrame
+        :func:`gimbal_lab.studies.lens_sweep.replicate_table` (the "ignore" runs of the fisheyes).
+    demand : DataFrame
+        :func:`gimbal_lab.studies.lens_sweep.demand_table` (one row per fisheye and cone).
+
+    Returns
+    -------
+    Figure
+        Left panels, one per target: passive − active error (the paper's pipeline, each run's own
+        detections) per fisheye, mean over replicates with its 95 % interval, the field cone
+        (0.7 of the half field) and the in-limit 40° cone side by side. Right: each cone's peak yaw
+        rate against the loop's 3 rad/s limit (bars) and the share of the active runs' measured
+        frames with a joint at its stop (points, right axis).
+    """
+    import pandas as pd
+
+    from ..stats import mean_interval
+
+    if replicates is None or len(replicates) == 0 or demand is None or len(demand) == 0:
+        raise ValueError("replicates and demand must hold rows")
+    lenses = list(dict.fromkeys(demand["lens"]))
+    targets = [t for t in _TARGET_TITLES if (replicates["target"] == t).any()]
+    cones = {"field": ("field cone (0.7 of half field)", "tab:red"), "in-limit": ("in-limit cone (40°)", "tab:green")}
+    if fig is None:
+        fig = plt.figure(figsize=(4.3 * len(targets) + 4.6, 3.8), layout="constrained")
+    axes = fig.subplots(1, len(targets) + 1)
+    x = np.arange(len(lenses))
+    ignore = replicates[replicates["strategy"] == "ignore"]
+    for ax, target in zip(axes, targets):
+        for j, (cone, (label, colour)) in enumerate(cones.items()):
+            means, lows, highs = [], [], []
+            for lens in lenses:
+                sel = ignore[(ignore["target"] == target) & (ignore["lens"] == lens) & (ignore["cone"] == cone)]
+                per = sel.pivot_table(index="seed", columns="mode", values="mean_abs_error_m")
+                gap = (per["passive"] - per["active"]) if {"passive", "active"} <= set(per.columns) else pd.Series(dtype=float)
+                mean, low, high = mean_interval(1000.0 * gap.to_numpy(float))
+                means.append(mean)
+                lows.append(low)
+                highs.append(high)
+            means, lows, highs = (np.array(v, float) for v in (means, lows, highs))
+            yerr = np.nan_to_num(np.clip(np.vstack((means - lows, highs - means)), 0.0, None))
+            ax.errorbar(x + (j - 0.5) * 0.18, means, yerr=yerr, fmt="o", ms=5, capsize=3, color=colour, label=label)
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xticks(x, lenses, fontsize=8)
+        ax.set_xlim(-0.5, len(lenses) - 0.5)
+        ax.set_ylabel("passive − active error [mm]")
+        ax.set_title(f"{_TARGET_TITLES.get(target, target)}: active's advantage (ignore the lens)", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, frameon=False)
+    ax = axes[-1]
+    for j, (cone, (label, colour)) in enumerate(cones.items()):
+        d = demand[demand["cone"] == cone].set_index("lens").reindex(lenses)
+        ax.bar(x + (j - 0.5) * 0.36, d["peak_yaw_rate_rad_s"], 0.36, color=colour, alpha=0.6, edgecolor="k",
+               linewidth=0.4, label=f"{label.split(' (')[0]}: peak yaw rate")
+    limit = float(demand["rate_limit_rad_s"].iloc[0])
+    ax.axhline(limit, color="k", ls="--", lw=1, label=f"loop's limit {limit:g} rad/s")
+    ax.set_xticks(x, lenses, fontsize=8)
+    ax.set_ylabel("peak yaw rate to centre the cone [rad/s]")
+    ax.set_title("demand: rate (bars), frames at a joint stop (points)", fontsize=9)
+    twin = ax.twinx()
+    for j, (cone, (label, colour)) in enumerate(cones.items()):
+        d = demand[demand["cone"] == cone].set_index("lens").reindex(lenses)
+        stops = d[[c for c in d.columns if c.startswith("stop_pct_")]].mean(axis=1) if any(
+            c.startswith("stop_pct_") for c in d.columns) else np.full(len(lenses), np.nan)
+        twin.plot(x + (j - 0.5) * 0.36, stops, "D", color=colour, mec="k", ms=6)
+    twin.set_ylabel("active frames at a joint stop [%]")
+    twin.set_ylim(0, 100)
+    ax.legend(fontsize=7, frameon=False, loc="upper left")
+    return fig
+
