@@ -144,8 +144,9 @@ class ManoeuvringTarget:
 
     Parameters
     ----------
-    seed : int or numpy.random.Generator
-        Seed of the plan; the same integer seed gives the same path.
+    seed : int, numpy.random.SeedSequence or numpy.random.Generator
+        Seed of the plan; the same integer seed (or sequence) gives the same path. A run passes its
+        "plan" stream (:func:`gimbal_lab.config.seed_stream`).
     speed_m_s : float
         Constant speed v, m/s, > 0.
     turn_accel_m_s2 : float
@@ -191,11 +192,11 @@ class ManoeuvringTarget:
 
     def __post_init__(self):
         seed = self.seed
-        if not isinstance(seed, np.random.Generator):
+        if not isinstance(seed, (np.random.Generator, np.random.SeedSequence)):
             if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
-                raise TypeError(f"seed must be an integer >= 0 or a numpy Generator, got {seed!r}")
+                raise TypeError(f"seed must be an integer >= 0, a numpy SeedSequence or a numpy Generator, got {seed!r}")
             if seed < 0:
-                raise ValueError(f"seed must be an integer >= 0 or a numpy Generator, got {seed!r}")
+                raise ValueError(f"seed must be an integer >= 0, a numpy SeedSequence or a numpy Generator, got {seed!r}")
         object.__setattr__(self, "speed_m_s", _positive("speed_m_s", self.speed_m_s))
         object.__setattr__(self, "turn_accel_m_s2",
                            _positive("turn_accel_m_s2", self.turn_accel_m_s2, upper=MAX_TURN_ACCEL_M_S2))
@@ -211,7 +212,8 @@ class ManoeuvringTarget:
             raise ValueError(f"half_extent_m must exceed two turn radii (2 v²/a = {2 * self.turn_radius_m:.3g} m) "
                              f"on every axis, got {self.half_extent_m!r}; lower speed_m_s or raise turn_accel_m_s2")
         object.__setattr__(self, "half_extent_m", half)
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(int(seed))
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(
+            seed if isinstance(seed, np.random.SeedSequence) else int(seed))
         object.__setattr__(self, "_plan", self._draw_plan(rng))
 
     @property

@@ -35,7 +35,7 @@ import pandas as pd
 from .. import stats
 from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
-from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number
+from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number, seed_stream
 from . import _params
 from ._params import StudyParams
 from .paper import replicate_phase_s
@@ -69,10 +69,6 @@ SHUTTERS = ("global", "rolling")
 
 #: Absolute floor of δ for blur streaks: a difference under a pixel is no difference in blur.
 STREAK_FLOOR_PX = 1.0
-
-#: Stream index of a replicate's draw of the flight's start point (the paper study uses 1).
-_FLIGHT_STREAM = 3
-
 
 @dataclass(frozen=True)
 class MovingDroneStudy(StudyParams):
@@ -134,8 +130,9 @@ Study = MovingDroneStudy
 
 
 def flight_phase_s(seed: int) -> float:
-    """Where replicate ``seed`` starts on the flight's round trip: U(0, its period), from the seed alone."""
-    return float(np.random.default_rng([_FLIGHT_STREAM, int(seed)]).uniform(0.0, WaypointFlight().period_s))
+    """Where replicate ``seed`` starts on the flight's round trip: U(0, its period), from the seed's
+    "flight_phase" stream (:func:`gimbal_lab.config.seed_stream`)."""
+    return float(np.random.default_rng(seed_stream(seed, "flight_phase")).uniform(0.0, WaypointFlight().period_s))
 
 
 def grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOTIONS) -> list[TrackingConfig]:

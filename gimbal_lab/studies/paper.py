@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..config import Camera, Estimator, Pointing, Target, TrackingConfig
+from ..config import Camera, Estimator, Pointing, Target, TrackingConfig, seed_stream
 from ._params import StudyParams, report_pyplot, verdict_rule, write_report_files
 
 __all__ = [
@@ -53,10 +53,6 @@ _LENS = {"undistorted": "none", "distorted": "default"}
 #: The target counts as centred once its detected centre comes within this fraction of the image
 #: width of the image centre (32 px at 640 px).
 CENTRED_FRACTION = 0.05
-
-#: Stream index that separates a replicate's phase draw from its noise draw.
-_PHASE_STREAM = 1
-
 
 @dataclass(frozen=True)
 class PaperStudy(StudyParams):
@@ -104,8 +100,9 @@ Study = PaperStudy
 
 
 def replicate_phase_s(seed: int, period_s: float) -> float:
-    """The start phase of replicate ``seed``: φ ~ U(0, period_s), drawn from the seed alone."""
-    return float(np.random.default_rng([_PHASE_STREAM, int(seed)]).uniform(0.0, period_s))
+    """The start phase of replicate ``seed``: φ ~ U(0, period_s), drawn from the seed's "phase"
+    stream (:func:`gimbal_lab.config.seed_stream`)."""
+    return float(np.random.default_rng(seed_stream(seed, "phase")).uniform(0.0, period_s))
 
 
 def grid(study: PaperStudy | None = None, targets=("sphere", "aruco"), **changes) -> list[TrackingConfig]:
