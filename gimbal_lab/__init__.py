@@ -17,15 +17,26 @@ trajectories  the study's target motions
 config        the run's config: camera, gimbal, platform, target, pointing, estimator parts
 simulation    the closed tracking loop
 runner        executors (local spawn pool, Dask), the results store, progress
+outputs       output files whole or absent; report folders with a manifest of their own files
+video         H.264 MP4 clips that browsers play (PyAV)
 stats         replicate statistics and three-way verdicts
 studies       one module per study (paper: the 16-cell grid and its claims)
 mavlink       MAVLink Gimbal Protocol v2: a driver and the lab's gimbal as a simulated device
 plotting      every figure
 """
 
-from importlib.metadata import PackageNotFoundError, version
 
-try:
-    __version__ = version("gimbal-lab")
-except PackageNotFoundError:  # running from a source tree that was not installed
-    __version__ = "0.0.0"
+
+def __getattr__(name):
+    # ``__version__`` is read on first use: importlib.metadata costs a tenth of a second, which
+    # ``gimbal-lab --help`` should not pay.
+    if name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("gimbal-lab")
+        except PackageNotFoundError:  # running from a source tree that was not installed
+            value = "0.0.0"
+        globals()["__version__"] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,7 +2,13 @@
 
 ``gimbal-lab reproduce`` is ``gimbal-lab run paper``. Other commands register themselves here
 through an ``add_parsers(subparsers)`` function of their module, so a new command is a module,
-not a branch in this file.
+not a branch in this file. Those modules import nothing heavy (numpy, OpenCV, the renderer,
+pandas, pymavlink) until their command runs, so ``gimbal-lab --help`` and every ``COMMAND --help``
+answer at once.
+
+Errors reach the user as one line on stderr, naming the culprit: a bad argument or output path
+exits 2, a failure while working exits 1, Ctrl-C exits 130 saying what is kept. ``--debug`` shows
+the traceback of an error instead.
 """
 
 from __future__ import annotations
@@ -17,20 +23,80 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 #: Modules that add sub-commands; each has ``add_parsers(subparsers)`` and sets ``func``.
-_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld", "gimbal_lab.show", "gimbal_lab.mavlink.cli")
+_COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld_cli", "gimbal_lab.show_cli",
+                    "gimbal_lab.mavlink.cli")
+
+EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, reporting a bad argument in one line on stderr (exit 2), without the
+    usage block: ``gimbal-lab run: error: --jobs: must be an integer >= 1, got '0'``."""
+
+    def error(self, message: str):
+        own = message.startswith(("argument ", "the following arguments", "unrecognized arguments"))
+        hint = f" (see {self.prog} --help)" if own else ""  # argparse's own messages name no remedy
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {' '.join(message.split())}{hint}\n")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return value
+
+
+def length_m(text: str) -> float:
+    """argparse type: a finite length > 0, metres (``nan``, ``inf``, 0 and negatives refused)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a length in metres > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite length in metres > 0, got {text!r}")
+    return value
+
+
+class _Version(argparse.Action):
+    """``--version``: reads the installed version only when asked (importlib.metadata is slow)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from . import __version__
+
+        parser.exit(0, f"gimbal-lab {__version__}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     from importlib import import_module
 
-    from . import __version__
-
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="gimbal-lab",
         description="gimbal-lab: active (gimbal) vs passive visual tracking from drones, after Hansen & "
                     "de Figueiredo, Drones 2024 (doi:10.3390/drones8020055).",
         epilog="Start with: gimbal-lab run paper --out results   (gimbal-lab COMMAND --help for a command's options)")
-    parser.add_argument("--version", action="version", version=f"gimbal-lab {__version__}")
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an error (by default an error is one line)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         try:
@@ -43,14 +109,59 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text
+
+
+def _known(exc: BaseException) -> tuple[int, str] | None:
+    """The exit status and message of an error the lab reports itself, or None for any other."""
+    outputs = sys.modules.get("gimbal_lab.outputs")
+    runner = sys.modules.get("gimbal_lab.runner")
+    if outputs is not None and isinstance(exc, outputs.OutputError):
+        return EXIT_USAGE, _one_line(exc)
+    if runner is not None and isinstance(exc, (runner.StoreError, runner.SweepFailed)):
+        return EXIT_FAILED, _one_line(exc)
+    if isinstance(exc, MemoryError):
+        return EXIT_FAILED, "out of memory (a smaller input, or fewer --jobs, may fit)"
+    return None
+
+
+def _warn_in_one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"gimbal-lab: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
         parser.print_help()
-        return 2
-    # a command module may set ``_parser`` to its sub-parser so its errors name the sub-command
-    return int(args.func(args, getattr(args, "_parser", None) or parser) or 0)
+        return EXIT_USAGE
+    # a command module sets ``_parser`` to its sub-parser so its errors name the sub-command
+    command = getattr(args, "_parser", None) or parser
+    if args.debug:
+        return int(args.func(args, command) or 0)
+    import warnings
+
+    show = warnings.showwarning
+    warnings.showwarning = _warn_in_one_line
+    try:
+        return int(args.func(args, command) or 0)
+    except KeyboardInterrupt as exc:
+        # RunInterrupted and the report's interruption say what is kept; a bare Ctrl-C, that it stopped
+        print(f"\n{command.prog}: {_one_line(exc) if str(exc) else 'interrupted'}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - every error is one line unless --debug
+        known = _known(exc)
+        if known is None:
+            status, message = EXIT_FAILED, (f"{type(exc).__name__}: {_one_line(exc)} (an unexpected error: run "
+                                             "again with gimbal-lab --debug ... for the traceback)")
+        else:
+            status, message = known
+        print(f"{command.prog}: error: {message}", file=sys.stderr)
+        return status
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":

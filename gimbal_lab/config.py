@@ -299,8 +299,9 @@ class Camera(_Part):
     """The camera: its image, lens, timing, exposure and noise.
 
     The focal length comes either from ``hfov_rad`` (the study: 60° across 640 px) or from a
-    calibration's ``calibration`` intrinsics (any fx, fy, cx, cy; ``hfov_rad`` must then be None);
-    :attr:`intrinsics` is the one the run uses.
+    calibration's ``calibration`` intrinsics (any fx, fy, cx, cy; ``hfov_rad`` must then be None),
+    usually read from a calibration file by :meth:`from_calibration`; :attr:`intrinsics` is the one
+    the run uses.
 
     Parameters
     ----------
@@ -351,9 +352,51 @@ class Camera(_Part):
 
     _NAME = "camera"
 
-    # Camera.from_calibration(path): a calibrated camera from a calibration file, once the
-    # calibration reader of gimbal_lab.realworld lands: Camera(calibration=<its Intrinsics>,
-    # lens=<its lens model>, hfov_rad=None). Not written here: it reads no file yet.
+    #: Fields a calibration file gives; :meth:`from_calibration` refuses them as keywords.
+    _CALIBRATED: ClassVar[tuple] = ("calibration", "lens", "hfov_rad", "width", "height")
+
+    @classmethod
+    def from_calibration(cls, path, image_size: tuple[int, int] | None = None, **fields) -> "Camera":
+        """A calibrated camera: intrinsics and lens from a calibration file, the rest from ``fields``.
+
+        The file is read by :func:`gimbal_lab.calibration.load_calibration` (OpenCV FileStorage
+        YAML/XML/JSON or ROS camera_info; any fx, fy, cx, cy and image size; a Brown–Conrady or
+        Kannala–Brandt lens, or an ideal one), the reader ``gimbal-lab track --calibration`` uses.
+        The camera keeps the calibration's numbers, not the path: its :meth:`to_dict` (and so a
+        run's store key) changes when a number of the file changes, and not when the file moves.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The calibration file.
+        image_size : (int, int), optional
+            (width, height) in pixels for a file that states none (it must agree when it does).
+        **fields
+            The camera's other fields (``fps``, ``latency_frames``, ``exposure_s``, ...); the
+            calibration gives ``calibration``, ``lens``, ``hfov_rad``, ``width`` and ``height``,
+            which are refused here.
+
+        Raises
+        ------
+        FileNotFoundError, ValueError
+            From the reader (naming the file, the node and what is allowed), or a field the
+            calibration gives.
+
+        Examples
+        --------
+        >>> cam = Camera.from_calibration("data/calibration/sample_640x480.yml", fps=60)  # doctest: +SKIP
+        >>> cam.intrinsics.fx, cam.lens_label, cam.fps  # doctest: +SKIP
+        (554.2562584220408, 'custom', 60.0)
+        """
+        from .calibration import load_calibration
+
+        given = [name for name in cls._CALIBRATED if name in fields]
+        if given:
+            raise ValueError(f"camera.{given[0]} comes from the calibration file {str(path)!r}; give only the "
+                             f"camera's other fields (not {', '.join(cls._CALIBRATED)})")
+        calibration = load_calibration(path, image_size)
+        lens = calibration.lens if calibration.lens is not None else "none"
+        return cls(calibration=calibration.intrinsics, lens=lens, **fields)
 
     def __post_init__(self):
         self._set("lens", _lens_from_table(self.lens, "camera.lens"))

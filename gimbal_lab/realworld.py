@@ -16,11 +16,12 @@ Three parts:
   an image folder or a camera index and writes an annotated MP4 and a per-frame CSV.
 
 The command-line front ends are ``gimbal-lab calibrate`` and ``gimbal-lab track``
-(:func:`add_parsers`).
+(:mod:`gimbal_lab.realworld_cli`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
@@ -42,7 +43,7 @@ __all__ = [
     "load_calibration",
     "open_frames",
     "track",
-    "add_parsers",
+    "MAX_FRAME_PIXELS",
     "sphere_photo",
     "PhotoEffects",
     "PlanarTargetCamera",
@@ -408,6 +409,52 @@ def sphere_photo(
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
+#: The largest frame :func:`open_frames` gives, in pixels: 40 megapixels (a 7,300 × 5,500 photo; a
+#: 4K video frame is 8.3). A larger image or video is refused
+#: from its header, before a pixel is decoded: calibrating one 20,000 × 20,000 image (400
+#: megapixels) took 21.5 GB, about 54 bytes per pixel: at that rate a 40-megapixel frame takes about
+#: 2 GB (extrapolated, not measured).
+MAX_FRAME_PIXELS = 40_000_000
+
+
+def _check_frame_size(width: int, height: int, name: str) -> None:
+    """ValueError naming ``name`` when a ``width`` × ``height`` frame exceeds :data:`MAX_FRAME_PIXELS`."""
+    if width * height > MAX_FRAME_PIXELS:
+        raise ValueError(f"{name} is {width}x{height} px ({width * height / 1e6:.0f} megapixels), more than the "
+                         f"{MAX_FRAME_PIXELS / 1e6:.0f} megapixels gimbal-lab reads: scale it down first (a "
+                         f"calibration is for one image size: calibrate and track at the same size)")
+
+
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from an image file's header, read by Pillow without decoding the pixels;
+    None if Pillow does not know the file. An image too large for Pillow's own limit is refused."""
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                return image.size
+    except Image.DecompressionBombError:
+        raise ValueError(f"{str(path)!r} has more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} megapixels, more than the "
+                         f"{MAX_FRAME_PIXELS / 1e6:.0f} megapixels gimbal-lab reads: scale it down first") from None
+    except (UnidentifiedImageError, OSError, ValueError):
+        return None
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """An image file as RGB uint8, its size checked from the header first."""
+    size = _image_size(path)
+    if size is not None:
+        _check_frame_size(*size, f"image {str(path)!r}")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"cannot read image {str(path)!r}")
+    _check_frame_size(image.shape[1], image.shape[0], f"image {str(path)!r}")
+    return image[..., ::-1].copy()
+
 
 @dataclass
 class FrameSource:
@@ -437,8 +484,8 @@ def open_frames(source) -> FrameSource:
     Parameters
     ----------
     source : str, os.PathLike or int
-        A camera index (an int, or a string of digits), a folder (its images, sorted by name)
-        or a video file.
+        A camera index (an int, or a string of digits), a folder (its images, sorted by name),
+        an image file or a video file.
 
     Returns
     -------
@@ -450,7 +497,9 @@ def open_frames(source) -> FrameSource:
     FileNotFoundError
         The path does not exist.
     ValueError
-        The folder holds no image, or the video or camera cannot be read.
+        The folder holds no image, the video or camera cannot be read, or a frame has more than
+        :data:`MAX_FRAME_PIXELS` pixels (checked from the file's header or the video stream's
+        size before a frame is decoded).
     """
     if isinstance(source, (int, np.integer)) or (isinstance(source, str) and source.isdigit()):
         index = int(source)
@@ -466,13 +515,21 @@ def open_frames(source) -> FrameSource:
         if not files:
             raise ValueError(f"folder {str(path)!r} holds no image ({', '.join(IMAGE_SUFFIXES)})")
         return FrameSource(str(path), 30.0, len(files), _image_frames(files))
+    if path.suffix.lower() in IMAGE_SUFFIXES and _image_size(path) is not None:  # a one-frame source
+        return FrameSource(str(path), 30.0, 1, iter([_read_image(path)]))
     capture = cv2.VideoCapture(str(path))
+    if capture.isOpened():
+        size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        try:
+            _check_frame_size(*size, f"video {str(path)!r}")
+        except ValueError:
+            capture.release()
+            raise
     ok, first = capture.read() if capture.isOpened() else (False, None)
     if not ok:
         capture.release()
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is not None:  # a single image is a one-frame source
-            return FrameSource(str(path), 30.0, 1, iter([image[..., ::-1].copy()]))
+        if path.suffix.lower() in IMAGE_SUFFIXES or cv2.haveImageReader(str(path)):
+            return FrameSource(str(path), 30.0, 1, iter([_read_image(path)]))
         raise ValueError(f"cannot read {str(path)!r} as a video or an image (unknown format or damaged file)")
     count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) or None
     return FrameSource(str(path), capture.get(cv2.CAP_PROP_FPS) or 30.0, count, _video_frames(capture, first))
@@ -493,10 +550,7 @@ def _video_frames(capture, first=None):
 
 def _image_frames(files):
     for file in files:
-        image = cv2.imread(str(file), cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"cannot read image {str(file)!r}")
-        yield image[..., ::-1].copy()
+        yield _read_image(file)
 
 
 # --------------------------------------------------------------------------------------------
@@ -589,6 +643,14 @@ def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float
     """
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step must be an integer >= 1, got {step!r}")
+    for name, value in (("square_m", square_m), ("marker_m", marker_m)):
+        if value is not None and not (isinstance(value, (int, float, np.number)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a length > 0 m, got {value!r}")
+    if board == "charuco" and marker_m is None:
+        raise ValueError("a ChArUco board needs marker_m (--marker)")
+    if board == "charuco" and not marker_m < square_m:
+        raise ValueError(f"marker_m must be smaller than square_m = {square_m} m, got {marker_m}")
+    _parse_pattern(pattern)
     objects, images, size = [], [], None
     iterator = frames
     if progress:
@@ -684,7 +746,7 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     out_dir : str or os.PathLike
         Folder for ``track.csv`` (columns :data:`TRACK_COLUMNS`, one row per detection, or one
         row with an empty ``target`` for a frame without one) and ``track.mp4`` (annotated,
-        codec ``mp4v``).
+        H.264, :mod:`gimbal_lab.video`; a frame with an odd side gets one repeated row or column).
     target : {"sphere", "aruco"}
     calibration : Calibration
         The camera; frames must have its image size.
@@ -693,7 +755,7 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     radius_m : float
         Sphere radius, metres (the exact ellipse method, with the calibrated lens).
     max_frames : int, optional
-        Stop after this many frames.
+        Stop after this many frames (>= 1).
     progress, video : bool
         Show a progress bar; write the annotated video.
 
@@ -701,25 +763,41 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     -------
     pandas.DataFrame
         The rows written; ``df.attrs`` holds ``frames``, ``seconds``, ``fps`` (frames per second of
-        the whole loop: read, detect, annotate, write) and ``interrupted``.
+        the whole loop: read, detect, annotate, write), ``interrupted`` and ``written`` (the paths).
 
     Notes
     -----
-    Ctrl-C stops the loop cleanly: the CSV rows and video frames written so far are kept.
-    Rows are flushed to the CSV as each frame finishes.
+    Both files are written under temporary names beside them and renamed into place at the end,
+    so ``track.csv`` and ``track.mp4`` are always a pair of the same frames, each whole: Ctrl-C
+    stops the loop and keeps the frames done so far (a frame's rows and its video frame are
+    written together, with Ctrl-C held back meanwhile); an error keeps the files of an earlier
+    run as they were. Nothing else in ``out_dir`` is touched; with ``video=False`` an older
+    ``track.mp4`` is left in place (it is not of these frames).
     """
     import pandas as pd
+
+    from .outputs import check_writable_folder, deferred_interrupts, remove_leftovers, temporary_name
+    from .video import VideoWriter
 
     if not isinstance(calibration, Calibration):
         raise TypeError(f"calibration must be a Calibration, got {type(calibration).__name__}")
     for name, value in (("marker_length_m", marker_length_m), ("radius_m", radius_m)):
         if not (math.isfinite(float(value)) and float(value) > 0):
             raise ValueError(f"{name} must be a length > 0 m, got {value!r}")
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer))
+                                   or max_frames < 1):
+        raise ValueError(f"max_frames must be an integer >= 1 or None, got {max_frames!r}")
+    out = check_writable_folder(out_dir, "out_dir")
+    paths = {"csv": out / "track.csv", "video": out / "track.mp4"}
+    for path in paths.values():
+        if path.is_dir():
+            raise ValueError(f"out_dir {out}: {path.name} is a folder; move it away or give another folder")
     run, draw = _make_localiser(target, calibration, dictionary, float(marker_length_m), float(radius_m))
     frames = open_frames(source)
-    out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    remove_leftovers(out)  # the temporary files of a killed earlier run
     cam = calibration.intrinsics
+    tmp = {key: temporary_name(path) for key, path in paths.items()}
     rows, writer, interrupted, n = [], None, False, 0
     total = frames.count if max_frames is None else min(frames.count or max_frames, max_frames)
     bar = None
@@ -728,132 +806,61 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
 
         bar = tqdm(total=total, desc=f"track {target}", unit="frame")
     start = time.perf_counter()
-    with open(out / "track.csv", "w", newline="") as handle:
-        table = csv.writer(handle)
-        table.writerow(TRACK_COLUMNS)
-        try:
-            for rgb in frames:
-                if max_frames is not None and n >= max_frames:
-                    break
-                if (rgb.shape[1], rgb.shape[0]) != cam.size:
-                    raise ValueError(
-                        f"frame {n} of {frames.name} is {rgb.shape[1]}x{rgb.shape[0]} px but the calibration is for "
-                        f"{cam.width}x{cam.height} px: calibrate this camera at this resolution"
-                    )
-                t0 = time.perf_counter()
-                found = run(rgb)
-                detect_ms = 1e3 * (time.perf_counter() - t0)
-                new = [
-                    (n, name, float(c[0]), float(c[1]), *(float(x) for x in p), float(np.linalg.norm(p)), detect_ms)
-                    for name, c, p, _ in found
-                ] or [(n, "", *(math.nan,) * 6, detect_ms)]
-                table.writerows(new)
-                handle.flush()
-                rows += new
-                if video:
-                    bgr = np.ascontiguousarray(rgb[..., ::-1])
-                    draw(bgr, found)
-                    cv2.putText(bgr, f"{n}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
-                    if writer is None:
-                        writer = cv2.VideoWriter(str(out / "track.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                                 float(frames.fps), cam.size)
-                        if not writer.isOpened():
-                            raise RuntimeError(f"cannot write {str(out / 'track.mp4')!r} (codec mp4v unavailable)")
-                    writer.write(bgr)
-                n += 1
-                if bar is not None:
-                    bar.update(1)
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
+    try:
+        with open(tmp["csv"], "w", newline="") as handle:
+            table = csv.writer(handle)
+            table.writerow(TRACK_COLUMNS)
+            try:
+                for rgb in frames:
+                    if max_frames is not None and n >= max_frames:
+                        break
+                    if (rgb.shape[1], rgb.shape[0]) != cam.size:
+                        raise ValueError(
+                            f"frame {n} of {frames.name} is {rgb.shape[1]}x{rgb.shape[0]} px but the calibration is "
+                            f"for {cam.width}x{cam.height} px: calibrate this camera at this resolution"
+                        )
+                    t0 = time.perf_counter()
+                    found = run(rgb)
+                    detect_ms = 1e3 * (time.perf_counter() - t0)
+                    new = [
+                        (n, name, float(c[0]), float(c[1]), *(float(x) for x in p), float(np.linalg.norm(p)), detect_ms)
+                        for name, c, p, _ in found
+                    ] or [(n, "", *(math.nan,) * 6, detect_ms)]
+                    if video:
+                        bgr = np.ascontiguousarray(rgb[..., ::-1])
+                        draw(bgr, found)
+                        cv2.putText(bgr, f"{n}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+                        if writer is None:
+                            writer = VideoWriter(tmp["video"], float(frames.fps))
+                    with deferred_interrupts():  # the frame's rows and its video frame, or neither
+                        if video:
+                            writer.write(bgr[..., ::-1])
+                        table.writerows(new)
+                        rows += new
+                        n += 1
+                    if bar is not None:
+                        bar.update(1)
+            except KeyboardInterrupt:
+                interrupted = True
+        with deferred_interrupts():  # the pair is finished and renamed together
             if writer is not None:
-                writer.release()
-            if bar is not None:
-                bar.close()
+                writer.close()
+                os.replace(tmp["video"], paths["video"])
+            os.replace(tmp["csv"], paths["csv"])
+    finally:
+        if writer is not None:
+            writer.close()
+        for path in tmp.values():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+        if bar is not None:
+            bar.close()
     seconds = time.perf_counter() - start
     df = pd.DataFrame(rows, columns=list(TRACK_COLUMNS))
-    df.attrs.update(frames=n, seconds=seconds, fps=n / seconds if seconds > 0 else math.nan, interrupted=interrupted)
+    written = [paths["csv"]] + ([paths["video"]] if writer is not None else [])
+    df.attrs.update(frames=n, seconds=seconds, fps=n / seconds if seconds > 0 else math.nan, interrupted=interrupted,
+                    written=written)
     return df
-
-
-# --------------------------------------------------------------------------------------------
-# Command line
-# --------------------------------------------------------------------------------------------
-
-
-def add_parsers(subparsers) -> None:
-    """Register ``gimbal-lab calibrate`` and ``gimbal-lab track`` on an argparse sub-parser set."""
-    cal = subparsers.add_parser(
-        "calibrate", help="calibrate a camera from chessboard/ChArUco images or a video",
-        description="Find a calibration board in every frame and write the camera's intrinsics, lens "
-                    "distortion and RMS reprojection error as OpenCV FileStorage YAML.")
-    cal.add_argument("source", help="image folder, video file or camera index")
-    cal.add_argument("--board", choices=("chessboard", "charuco"), default="chessboard")
-    cal.add_argument("--pattern", default="9x6",
-                     help="chessboard: inner corners COLSxROWS; charuco: squares COLSxROWS (default 9x6)")
-    cal.add_argument("--square", type=float, default=0.025, metavar="METRES", help="side of a square (default 0.025)")
-    cal.add_argument("--marker", type=float, default=None, metavar="METRES", help="ChArUco: side of a marker")
-    cal.add_argument("--dictionary", default="DICT_5X5_100", help="ChArUco marker dictionary (default DICT_5X5_100)")
-    cal.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
-    cal.add_argument("--max-frames", type=int, default=None, help="read at most this many frames")
-    cal.add_argument("--out", default="calibration.yaml", help="output file (default calibration.yaml)")
-    cal.add_argument("--no-progress", action="store_true", help="no progress bar")
-    cal.set_defaults(func=_calibrate_command, _parser=cal)
-
-    trk = subparsers.add_parser(
-        "track", help="track a sphere or ArUco markers in a video, an image folder or a camera",
-        description="Detect the target in every frame, estimate its 3-D position in the camera frame, and "
-                    "write DIR/track.mp4 (annotated) and DIR/track.csv (one row per detection).")
-    trk.add_argument("source", help="video file, image folder or camera index (e.g. 0)")
-    trk.add_argument("--target", choices=("sphere", "aruco"), required=True)
-    trk.add_argument("--calibration", required=True, metavar="FILE",
-                     help="calibration YAML (gimbal-lab calibrate, OpenCV FileStorage or ROS camera_info)")
-    trk.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    trk.add_argument("--dictionary", default="DICT_4X4_50", help="ArUco dictionary (default DICT_4X4_50)")
-    trk.add_argument("--marker-length", type=float, default=0.30, metavar="METRES",
-                     help="ArUco: side of the black square (default 0.30)")
-    trk.add_argument("--radius", type=float, default=0.10, metavar="METRES", help="sphere radius (default 0.10)")
-    trk.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
-    trk.add_argument("--no-video", action="store_true", help="write the CSV only")
-    trk.add_argument("--no-progress", action="store_true", help="no progress bar")
-    trk.set_defaults(func=_track_command, _parser=trk)
-
-
-def _limited(frames, max_frames):
-    for k, frame in enumerate(frames):
-        if max_frames is not None and k >= max_frames:
-            return
-        yield frame
-
-
-def _calibrate_command(args, parser) -> int:
-    try:
-        frames = open_frames(args.source)
-        result = calibrate(_limited(frames, args.max_frames), args.board, args.pattern, args.square, args.marker,
-                           args.dictionary, args.step, progress=not args.no_progress)
-        path = save_calibration(args.out, result)
-    except (FileNotFoundError, ValueError) as exc:
-        parser.error(str(exc))
-    cam = result.intrinsics
-    print(f"{path}: {cam.width}x{cam.height} px, fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f}, "
-          f"k1={result.distortion.k1:.4f} k2={result.distortion.k2:.4f}; RMS reprojection error "
-          f"{result.rms_px:.3f} px over {result.views} views")
-    return 0
-
-
-def _track_command(args, parser) -> int:
-    try:
-        calibration = load_calibration(args.calibration)
-        df = track(args.source, args.out, args.target, calibration, args.dictionary, args.marker_length, args.radius,
-                   args.max_frames, progress=not args.no_progress, video=not args.no_video)
-    except (FileNotFoundError, ValueError, TypeError) as exc:
-        parser.error(str(exc))
-    a = df.attrs
-    detected = df.loc[df["target"] != "", "frame"].nunique()
-    print(f"{a['frames']} frames in {a['seconds']:.1f} s ({a['fps']:.0f} frames/s), target in {detected}; "
-          f"wrote {os.path.join(args.out, 'track.csv')}" + ("" if args.no_video else " and track.mp4")
-          + ("  (interrupted: kept what was written)" if a["interrupted"] else ""))
-    return 130 if a["interrupted"] else 0
 
 
 # --------------------------------------------------------------------------------------------
@@ -862,7 +869,14 @@ def _track_command(args, parser) -> int:
 
 
 def write_video(path, frames, fps: float = 30.0) -> Path:
-    """Write RGB frames to an MP4 (``cv2.VideoWriter``, codec ``mp4v``); returns the path."""
+    """Write RGB frames to an MP4 as a camera recording stand-in (``cv2.VideoWriter``, codec
+    ``mp4v``, MPEG-4 Part 2); returns the path.
+
+    This is test input, part of the photo-like effects: notebook 12's measured claims (e.g. every
+    marker frame read too far) were made on it, and H.264 moves a far marker's edges differently
+    (one frame of 48, at 1.9 m, then reads 0.4–1.0 % short). Browsers do not play MPEG-4 Part 2: clips meant to
+    be watched go through :func:`gimbal_lab.video.write_video` (H.264).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = None

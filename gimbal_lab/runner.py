@@ -48,10 +48,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .outputs import folder_lock as _folder_lock
 from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
 __all__ = ["ResultsStore", "RunInterrupted", "SweepFailed", "SourceMismatch", "WorkersDied", "ResultMismatch",
-           "StoreError", "run", "source_hash", "dask_executor", "staged_folder"]
+           "StoreError", "run", "source_hash", "dask_executor"]
 
 log = logging.getLogger(__name__)
 
@@ -1191,81 +1192,6 @@ def _failure_message(exc: SweepFailed, kept: int, total: int, store) -> str:
                     f"finished{where}; run the same command again: it computes every run with the code as it is now "
                     "(the kept runs are reused only if the sweep's source is restored)")
     return f"{exc.args[0]}; {_resume_hint(kept, total, store)}"
-
-
-# ----------------------------------------------------------------------------------------------
-# output folders
-# ----------------------------------------------------------------------------------------------
-class staged_folder:
-    """Write a whole output folder, then swap it in: never a mix of old and new files.
-
-    ``with staged_folder(path) as tmp:`` yields an empty sibling folder; on success the old
-    ``path`` is moved aside, ``tmp`` renamed to ``path`` and the old one deleted; on any error
-    (Ctrl-C included) ``tmp`` is deleted and ``path`` is left as it was. Leftovers of a killed
-    process are removed the next time.
-
-    Several writers of one ``path`` at once (two reports finishing at the same instant, in
-    processes or threads) each end with a whole folder in place, the last one's: the sibling
-    names are unique to each call (``.NAME.staging-RANDOM-PID``), and the two renames of a swap
-    are made while holding an ``fcntl.flock`` on the parent folder, so no swap sees another's
-    half done. Where the parent folder cannot be locked (some network file systems), a swap that
-    finds the folder moved or replaced under it retries.
-    """
-
-    def __init__(self, path):
-        path = os.fspath(path)
-        if not isinstance(path, str) or not path.strip():
-            raise ValueError(f"output folder must be a non-empty path, got {path!r}")
-        self.path = Path(path)
-        unique = f"{secrets.token_hex(4)}-{os.getpid()}"  # the pid last: leftovers of dead processes are found by it
-        self.staging = self.path.parent / f".{self.path.name}.staging-{unique}"
-        self.old = self.path.parent / f".{self.path.name}.old-{unique}"
-
-    def __enter__(self) -> Path:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        for leftover in self.path.parent.glob(f".{self.path.name}.*-*"):
-            pid = leftover.name.rsplit("-", 1)[-1]
-            if pid.isdigit() and not _alive(int(pid)):
-                shutil.rmtree(leftover, ignore_errors=True)
-        self.staging.mkdir()
-        return self.staging
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
-            return
-        with _folder_lock(self.path.parent):
-            for attempt in range(20):
-                with contextlib.suppress(FileNotFoundError):
-                    os.rename(self.path, self.old)  # gone already: another writer's swap is between its renames
-                try:
-                    os.rename(self.staging, self.path)
-                    break
-                except OSError:  # another writer put its folder in place meanwhile (no lock)
-                    if not self.path.is_dir() or attempt == 19:
-                        raise
-                    shutil.rmtree(self.old, ignore_errors=True)
-        shutil.rmtree(self.old, ignore_errors=True)
-
-
-@contextlib.contextmanager
-def _folder_lock(folder: Path):
-    """Hold an exclusive ``flock`` on ``folder`` (nothing where the file system cannot lock it)."""
-    import fcntl
-
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        yield
-        return
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except OSError:
-            pass
-        yield
-    finally:
-        os.close(fd)
 
 
 if sys.platform == "win32":  # pragma: no cover - the lab targets Linux servers

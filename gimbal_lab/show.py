@@ -10,8 +10,9 @@ the config keeps the seed. That is enough to render every frame again exactly as
 - the detected centre (magenta x) and the frame's distance error.
 
 :func:`side_by_side` puts the passive and active runs of one cell next to each other at the same
-instants; :func:`write_clip` writes MP4 (OpenCV's ``mp4v``) or GIF (Pillow, already installed
-with matplotlib), so no system ffmpeg is needed. ``gimbal-lab show`` does all of it.
+instants; :func:`write_clip` writes MP4 (H.264, which browsers play, through PyAV's bundled
+encoder) or GIF (Pillow, already installed with matplotlib), so no system ffmpeg is needed.
+``gimbal-lab show`` (:mod:`gimbal_lab.show_cli`) does all of it.
 
 Notes
 -----
@@ -21,7 +22,6 @@ Paper §4.1 (Fig. 5, the camera's view of the scene during tracking).
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import cv2
@@ -31,7 +31,7 @@ from .config import seed_stream
 from .mount import exposure_pose_fn
 from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame
 
-__all__ = ["replay", "annotate", "side_by_side", "write_clip", "show"]
+__all__ = ["replay", "annotate", "side_by_side", "write_clip", "show", "default_clip_path"]
 
 _GREY, _GREEN, _YELLOW, _MAGENTA = (170, 170, 170), (40, 220, 60), (255, 220, 0), (255, 0, 255)
 #: Frames of true-centre history drawn as the offset trace.
@@ -203,10 +203,14 @@ def gif_frame_ms(fps: float) -> int:
 
 
 def write_clip(path, frames, fps: float, gif_scale: float = 0.5) -> Path:
-    """Write RGB ``frames`` to ``path`` (.mp4 or .gif) through a temporary file (nothing half-written
-    is left on an error or Ctrl-C). GIF frames are scaled by ``gif_scale`` to keep the file small
-    and last :func:`gif_frame_ms` each.
+    """Write RGB ``frames`` to ``path`` (.mp4 or .gif) through a temporary file beside it (nothing
+    half-written is left on an error or Ctrl-C, and an older file keeps its content).
+
+    MP4 is H.264 in 4:2:0, which browsers play (:mod:`gimbal_lab.video`). GIF frames are scaled by
+    ``gif_scale`` to keep the file small and last :func:`gif_frame_ms` each.
     """
+    from .outputs import atomic_path
+
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".mp4", ".gif"):
@@ -215,39 +219,38 @@ def write_clip(path, frames, fps: float, gif_scale: float = 0.5) -> Path:
         raise ValueError(f"fps must be a number > 0, got {fps!r}")
     if not (isinstance(gif_scale, (int, float)) and 0 < gif_scale <= 1):
         raise ValueError(f"gif_scale must be in (0, 1], got {gif_scale!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{suffix}")
-    try:
-        if suffix == ".mp4":
-            from .realworld import write_video
+    if suffix == ".mp4":
+        from .video import write_video
 
-            write_video(tmp, frames, fps=fps)
-        else:
-            from PIL import Image
+        return write_video(path, frames, fps=fps)
+    from PIL import Image
 
-            images = []
-            for rgb in frames:
-                small = cv2.resize(rgb, None, fx=gif_scale, fy=gif_scale, interpolation=cv2.INTER_AREA)
-                # 64 colours without dithering: sensor noise falls into flat colour bins, which
-                # keeps the LZW-coded file several times smaller than a dithered palette
-                images.append(Image.fromarray(small).quantize(colors=64, dither=Image.Dither.NONE))
-            if not images:
-                raise ValueError("no frames to write")
-            images[0].save(tmp, save_all=True, append_images=images[1:], duration=gif_frame_ms(fps), loop=0)
-        if not tmp.exists():
-            raise ValueError("no frames to write")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path) as tmp:
+        images = []
+        for rgb in frames:
+            small = cv2.resize(rgb, None, fx=gif_scale, fy=gif_scale, interpolation=cv2.INTER_AREA)
+            # 64 colours without dithering: sensor noise falls into flat colour bins, which
+            # keeps the LZW-coded file several times smaller than a dithered palette
+            images.append(Image.fromarray(small).quantize(colors=64, dither=Image.Dither.NONE))
+        if not images:
+            raise ValueError(f"no frames to write to {path}")
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=gif_frame_ms(fps), loop=0)
     return path
 
 
+def default_clip_path(target: str = "sphere", distortion: str = "default", trajectory: str = "circular",
+                      seed: int = 0) -> Path:
+    """Where ``gimbal-lab show`` writes a cell's clip when not told: ``results/show/TARGET_LENS_PATH_seedN.mp4``."""
+    return Path("results") / "show" / f"{target}_{distortion}_{trajectory}_seed{seed}.mp4"
+
+
 def show(target: str = "sphere", distortion: str = "default", trajectory: str = "circular", seed: int = 0,
-         out="run.mp4", *, study=None, store=None, every: int = 1, jobs: int | None = None,
+         out=None, *, study=None, store=None, every: int = 1, jobs: int | None = None,
          progress: bool = True) -> Path:
     """Run (or reuse from ``store``) the passive and active runs of one paper-study cell and
-    replicate, and write them side by side to ``out``. Returns the clip's path."""
+    replicate, and write them side by side to ``out`` (.mp4 or .gif; default
+    :func:`default_clip_path`). Returns the clip's path."""
+    from .outputs import check_new_file
     from .runner import run
     from .studies.paper import PaperStudy, grid
 
@@ -261,6 +264,8 @@ def show(target: str = "sphere", distortion: str = "default", trajectory: str = 
         raise ValueError(f"no study cell for distortion={distortion!r}, trajectory={trajectory!r} "
                          "(distortion: none or default; trajectory: circular or diagonal)")
     passive, active = sorted(cells, key=lambda c: c.pointing.active)
+    out = default_clip_path(target, distortion, trajectory, seed) if out is None else Path(out)
+    check_new_file(out, "the clip", suffixes=(".mp4", ".gif"))  # before the runs, not after them
     r_passive, r_active = run([passive, active], store=store, jobs=jobs, progress=progress, desc="runs to show")
     frames = side_by_side(r_passive, r_active, every=every)
     if progress:
@@ -268,46 +273,3 @@ def show(target: str = "sphere", distortion: str = "default", trajectory: str = 
 
         frames = tqdm(frames, total=math.ceil(passive.n_frames / every), desc="clip", unit="frame")
     return write_clip(out, frames, fps=passive.camera.fps / every)
-
-
-# ----------------------------------------------------------------------------------------------
-# command line
-# ----------------------------------------------------------------------------------------------
-def add_parsers(sub) -> None:
-    p = sub.add_parser("show", help="write a clip of one cell's passive and active runs side by side",
-                       description="Render the camera's frames of one paper-study cell and replicate, passive "
-                                   "left and active right, with the image centre (grey), the true centre and "
-                                   "its trace (green, yellow) and the detection (magenta), as MP4 or GIF.")
-    p.add_argument("--target", choices=("sphere", "aruco"), default="sphere")
-    p.add_argument("--distortion", choices=("none", "default"), default="default")
-    p.add_argument("--trajectory", choices=("circular", "diagonal"), default="circular")
-    p.add_argument("--seed", type=int, default=0, help="the replicate (default 0)")
-    p.add_argument("--config", help="a study TOML (default: the paper's, data/studies/paper.toml)")
-    p.add_argument("--store", help="results store to reuse runs from and keep them in (default: none)")
-    p.add_argument("--every", type=int, default=1, help="show every N-th frame (default 1)")
-    p.add_argument("--out", default="run.mp4", help="the clip, .mp4 or .gif (default run.mp4)")
-    p.set_defaults(func=_show_command, _parser=p)
-
-
-def _show_command(args, parser) -> int:
-    from .runner import RunInterrupted
-    from .studies.paper import PaperStudy
-
-    if args.every < 1:
-        parser.error(f"--every must be >= 1, got {args.every}")
-    if Path(args.out).suffix.lower() not in (".mp4", ".gif"):
-        parser.error(f"--out must end in .mp4 or .gif, got {args.out!r}")
-    try:
-        study = PaperStudy.from_toml(args.config) if args.config else PaperStudy()
-        path = show(args.target, args.distortion, args.trajectory, args.seed, args.out, study=study,
-                    store=args.store, every=args.every)
-    except (ValueError, FileNotFoundError) as exc:
-        parser.error(str(exc))
-    except RunInterrupted as exc:
-        print(f"\n{exc}")
-        return 130
-    except KeyboardInterrupt:
-        print("\ninterrupted: no clip written")
-        return 130
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
-    return 0

@@ -26,6 +26,7 @@ Prerequisites (checked first; exit status 2 names what is missing)::
 Run from the repository root, in the project's environment::
 
     PYOPENGL_PLATFORM=egl python scripts/browser_check.py [--notebook PATH] [--timeout S] [--out DIR]
+    python scripts/browser_check.py --video results/paper/clips/sphere.mp4    # a clip plays in Chromium
 
 ``PYOPENGL_PLATFORM`` defaults to ``egl`` for the kernel when unset (headless rendering).
 Outputs in ``--out`` (default /tmp/browser_check): explorer_0_initial.png,
@@ -93,8 +94,9 @@ def major_version(binary: str) -> int | None:
     return int(match.group(1)) if match else None
 
 
-def check_prerequisites(notebook: Path) -> list[str]:
-    """Everything missing to run the check, each with how to get it (empty: all present)."""
+def check_prerequisites(notebook: Path | None) -> list[str]:
+    """Everything missing to run the check, each with how to get it (empty: all present). Without
+    ``notebook`` (the clip check), only the browser, chromedriver, selenium and PyAV."""
     problems = []
     chromium, chromedriver = find_browser()
     if chromium is None:
@@ -110,6 +112,10 @@ def check_prerequisites(notebook: Path) -> list[str]:
                             "apt-get install -y chromium chromium-driver (same release)")
     if importlib.util.find_spec("selenium") is None:
         problems.append(f"selenium is not importable by {sys.executable}: pip install selenium")
+    if notebook is None:
+        if importlib.util.find_spec("av") is None:
+            problems.append(f"PyAV is not importable by {sys.executable}: pip install -e . (from the repository root)")
+        return problems
     for module in ("jupyterlab", "ipywidgets", "ipykernel"):
         if importlib.util.find_spec(module) is None:
             problems.append(f"{module} is not importable by {sys.executable}: pip install -e '.[notebooks]' "
@@ -196,6 +202,9 @@ class LabServer:
             f"--LabApp.user_settings_dir={self.scratch / 'settings'}",
             f"--LabApp.workspaces_dir={self.scratch / 'workspaces'}",
             f"--FileCheckpoints.checkpoint_dir={self.scratch / 'checkpoints'}",
+            # no request for the Jupyter news feed; the pop-up asking about it is answered by the
+            # fetchNews setting of write_lab_settings (this flag alone still shows it)
+            "--LabApp.news_url=None",
         ]
         self._log = open(self.log_path, "w", encoding="utf-8")
         # Its own session: Ctrl-C in the terminal reaches only this script, which then stops it.
@@ -683,6 +692,50 @@ def run_check(args, report: Report, scratch: Path) -> None:
         report.check("the notebook file is unchanged", digest_after == digest_before)
 
 
+VIDEO_STATE_JS = """
+const v = document.getElementById('clip');
+return {readyState: v.readyState, duration: v.duration, width: v.videoWidth, height: v.videoHeight,
+        error: v.error ? v.error.code + ' ' + (v.error.message || '') : null};
+"""
+
+
+def check_video(args, report: Report, scratch: Path) -> None:
+    """Open ``args.video`` in a ``<video>`` element of headless Chromium: it must load (readyState
+    >= 2, HAVE_CURRENT_DATA: a frame can be shown), with the duration and size PyAV reads."""
+    from gimbal_lab.video import probe_video
+
+    clip: Path = args.video
+    info = probe_video(clip)
+    report.check("the clip is H.264 in 4:2:0", (info.codec, info.pixel_format) == ("h264", "yuv420p"),
+                 f"{info.codec}, {info.pixel_format}, {info.width}x{info.height}, {info.frames} frames, "
+                 f"{info.duration_s:.3f} s")
+    page = scratch / "clip.html"
+    page.write_text(f'<!doctype html><video id="clip" src="{clip.as_uri()}" muted preload="auto"></video>',
+                    encoding="utf-8")
+    chromium, chromedriver = find_browser()
+    driver = None
+    try:
+        with step(report, "browser start"):
+            driver = start_browser(chromium, chromedriver, args.out / "chromedriver.log")
+        with step(report, "clip load"):
+            driver.get(page.as_uri())
+            state = wait_until(lambda: (lambda s: s if s["readyState"] >= 2 or s["error"] else None)(
+                driver.execute_script(VIDEO_STATE_JS)), 60, "the video element to load the clip")
+        frame_s = 1.0 / info.fps if info.fps else 0.05
+        report.check("the browser plays the clip (readyState >= 2, no media error)",
+                     state["readyState"] >= 2 and not state["error"],
+                     f"readyState {state['readyState']}" + (f", error {state['error']}" if state["error"] else ""))
+        duration = state["duration"] if isinstance(state["duration"], (int, float)) else float("nan")
+        report.check("its duration is the file's (within one frame)", abs(duration - info.duration_s) <= frame_s,
+                     f"browser {duration:.3f} s, file {info.duration_s:.3f} s")
+        report.check("its size is the file's", (state["width"], state["height"]) == (info.width, info.height),
+                     f"browser {state['width']}x{state['height']}")
+        driver.save_screenshot(str(args.out / "clip.png"))
+    finally:
+        if driver is not None:
+            driver.quit()
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -692,14 +745,21 @@ def parse_args(argv=None):
                         help="seconds allowed for running all cells (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT,
                         help="folder for the PNGs, the screenshot and the logs (default: %(default)s)")
+    parser.add_argument("--video", type=Path, metavar="CLIP.mp4",
+                        help="instead of the notebook: check that Chromium plays this clip in a <video> element "
+                             "(e.g. results/paper/clips/sphere.mp4)")
     args = parser.parse_args(argv)
     args.notebook = args.notebook.resolve()
+    if args.video is not None:
+        args.video = args.video.resolve()
+        if not args.video.is_file():
+            parser.error(f"--video {args.video}: no such file")
     return args
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    problems = check_prerequisites(args.notebook)
+    problems = check_prerequisites(None if args.video else args.notebook)
     if problems:
         print("browser check: missing prerequisites", file=sys.stderr)
         for problem in problems:
@@ -714,9 +774,13 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     report = Report()
     scratch = Path(tempfile.mkdtemp(prefix="browser_check-"))
-    print(f"checking the explorer of {args.notebook} (outputs in {args.out})", flush=True)
+    what = f"that Chromium plays {args.video}" if args.video else f"the explorer of {args.notebook}"
+    print(f"checking {what} (outputs in {args.out})", flush=True)
     try:
-        run_check(args, report, scratch)
+        if args.video:
+            check_video(args, report, scratch)
+        else:
+            run_check(args, report, scratch)
     except CheckFailed as error:
         report.failure = str(error)
     except KeyboardInterrupt:

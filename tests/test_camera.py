@@ -83,6 +83,8 @@ def test_undistort_matches_opencv_over_the_image():
     theirs = cv2.undistortPoints(grid[:, None, :], CAM.K, DIST.coefficients, None, None, CAM.K, criteria)
     # OpenCV's fixed-point iteration converges linearly; 1e-6 px is far below anything visible.
     assert np.abs(ours - theirs[:, 0, :]).max() < 1e-6
+    # our Newton stops once |distort(x) − x_d| < 1e-12 (normalised), 5.5e-10 px at f = 554 px on any
+    # CPU (measured 5.47e-10); 1e-8 px adds room for the pixel conversions
     assert np.abs(distort_pixels(ours, CAM, DIST) - grid).max() < 1e-8
 
 

@@ -588,13 +588,18 @@ def test_bad_argument_from_the_command_line():
 
 
 # ---------------------------------------------------------------------------------- serial links
-def test_serial_pseudo_terminal_lockstep():
-    """The device command on the slave side of a pty pair (opened by pyserial as a serial port),
-    the driver on the master side."""
+def _pty_device():
     master, slave = os.openpty()
     tty.setraw(slave)  # no echo or line editing before the device's pyserial takes the port
     proc = subprocess.Popen(cli("--listen", os.ttyname(slave), "--lockstep", "--status-rate-hz", "25"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return master, slave, proc
+
+
+def test_serial_pseudo_terminal_lockstep():
+    """The device command on the slave side of a pty pair (opened by pyserial as a serial port),
+    the driver on the master side; Ctrl-C while the link is open stops the device with 130."""
+    master, slave, proc = _pty_device()
     try:
         wait_for_line(proc, "Ctrl-C stops")
         with MavlinkGimbal(FdLink(master, address="pty"), lockstep=True, discover_timeout_s=LIVENESS_S) as gimbal:
@@ -602,16 +607,31 @@ def test_serial_pseudo_terminal_lockstep():
             gimbal.send_rates([0.0, 0.3, 0.0])
             assert gimbal.step(1.0) == 1.0
             reports = gimbal.reports()
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=LIVENESS_S)
         assert [round(r.time_s * 1000) for r in reports] == list(range(40, 1001, 40))
         assert abs(slope(reports, 2, 0.6, 1.0) - 0.3) < 1e-6
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=LIVENESS_S)
-        finally:
-            proc.kill()
-            os.close(slave)
-    assert proc.returncode == 130
+        proc.kill()
+        os.close(slave)
+    assert proc.returncode == 130 and "gimbal-device: interrupted at 1.000 s simulated" in out, (out, err)
+
+
+def test_serial_pseudo_terminal_closed_by_the_controller():
+    """When the controller closes its side of the pty the device says so and ends with 0
+    (pyserial's "readiness to read but returned no data" is the hang-up, not an unexpected error)."""
+    master, slave, proc = _pty_device()
+    try:
+        wait_for_line(proc, "Ctrl-C stops")
+        with MavlinkGimbal(FdLink(master, address="pty"), lockstep=True, discover_timeout_s=LIVENESS_S) as gimbal:
+            gimbal.send_rates([0.0, 0.3, 0.0])
+            assert gimbal.step(0.2) == 0.2
+        out, err = proc.communicate(timeout=LIVENESS_S)
+    finally:
+        proc.kill()
+        os.close(slave)
+    assert proc.returncode == 0 and "gimbal-device: link closed at 0.200 s simulated" in out, (out, err)
+    assert err == ""
 
 
 def test_loop_url_carries_a_packet_back():

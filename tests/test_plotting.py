@@ -218,3 +218,22 @@ def test_lens_sweep_plots_one_line_per_strategy_and_rejects_unknown_values():
     plt.close(fig)
     with pytest.raises(ValueError, match="value must be one of"):
         plot_lens_sweep(_lens_summary(), "speed")
+
+
+def test_saved_figure_paths_show_in_a_notebook_as_plain_paths(tmp_path):
+    """A notebook cell ending in save_figure shows the path(s) written, one per line, as IPython's
+    display prints them (not ``PosixPath('...')`` or a list of them); they are still Paths."""
+    from pathlib import Path
+
+    from IPython.lib.pretty import pretty
+
+    from gimbal_lab.plotting import save_figure
+
+    fig = plt.figure()
+    one = save_figure(fig, "f", tmp_path)
+    both = save_figure(fig, "g", tmp_path, formats=("png", "svg"))
+    plt.close(fig)
+    assert pretty(one) == str(tmp_path / "f.png") and repr(one) == str(tmp_path / "f.png")
+    assert pretty(both) == f"{tmp_path / 'g.png'}\n{tmp_path / 'g.svg'}"
+    assert one == tmp_path / "f.png" and isinstance(one, Path) and one.stat().st_size > 0
+    assert both == [tmp_path / "g.png", tmp_path / "g.svg"] and all(isinstance(p, Path) for p in both)

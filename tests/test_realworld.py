@@ -191,6 +191,13 @@ def test_frames_without_a_target_get_an_empty_row(tmp_path):
     assert list(df["frame"]) == [0, 1, 2] and (df["target"] == "").all() and df["x_m"].isna().all()
 
 
+def _pair(folder):
+    """(frames in track.csv, frames in track.mp4) of a track output folder."""
+    from gimbal_lab.video import probe_video
+
+    return pd.read_csv(folder / "track.csv")["frame"].nunique(), probe_video(folder / "track.mp4").frames
+
+
 def test_track_keeps_what_it_wrote_when_interrupted(tmp_path, monkeypatch, marker_recording):
     frames, _ = marker_recording
 
@@ -205,6 +212,115 @@ def test_track_keeps_what_it_wrote_when_interrupted(tmp_path, monkeypatch, marke
     capture = cv2.VideoCapture(str(tmp_path / "track.mp4"))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
     capture.release()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["track.csv", "track.mp4"]  # no temporary file left
+
+
+def test_ctrl_c_while_a_frame_is_written_keeps_a_matching_pair(tmp_path, monkeypatch, marker_recording):
+    """SIGINT arrives while frame 3 goes into the video: it is held back until the frame's CSV rows
+    are written too, so the CSV and the MP4 hold the same 4 frames."""
+    import os
+    import signal
+
+    from gimbal_lab import video
+
+    frames, _ = marker_recording
+    monkeypatch.setattr(rw, "open_frames", lambda source: rw.FrameSource("test", 30.0, 20, iter(frames)))
+    real_write = video.VideoWriter.write
+
+    def write(self, rgb):
+        real_write(self, rgb)
+        if self.frames == 4:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(video.VideoWriter, "write", write)
+    df = rw.track("ignored", tmp_path, "aruco", rw.Calibration(CAM, LENS), marker_length_m=MARKER_M, progress=False)
+    assert df.attrs["interrupted"] and df.attrs["frames"] == 4
+    assert _pair(tmp_path) == (4, 4)
+
+
+def test_a_failed_rerun_keeps_the_earlier_pair(tmp_path, monkeypatch, marker_recording):
+    frames, _ = marker_recording
+    calibration = rw.Calibration(CAM, LENS)
+    monkeypatch.setattr(rw, "open_frames", lambda source: rw.FrameSource("test", 30.0, 5, iter(frames[:5])))
+    rw.track("ignored", tmp_path, "aruco", calibration, marker_length_m=MARKER_M, progress=False)
+    before = {name: (tmp_path / name).read_bytes() for name in ("track.csv", "track.mp4")}
+    bad = frames[:3] + [np.zeros((240, 320, 3), np.uint8)]  # frame 3 is of another camera
+    monkeypatch.setattr(rw, "open_frames", lambda source: rw.FrameSource("test", 30.0, 4, iter(bad)))
+    with pytest.raises(ValueError, match="frame 3 of test is 320x240 px"):
+        rw.track("ignored", tmp_path, "aruco", calibration, marker_length_m=MARKER_M, progress=False)
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["track.csv", "track.mp4"]
+
+
+_KILLED_TRACK = """
+import sys, time
+from pathlib import Path
+import numpy as np
+from gimbal_lab import realworld as rw
+from gimbal_lab.camera import BrownConrady, Intrinsics
+
+out = Path(sys.argv[1])
+def frames():
+    rng = np.random.default_rng(0)
+    for k in range(5):
+        yield rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    (out / "ready").write_text("5 frames written")
+    time.sleep(120)
+rw.open_frames = lambda source: rw.FrameSource("test", 30.0, None, frames())
+rw.track("ignored", out / "tracked", "sphere", rw.Calibration(Intrinsics.default(), BrownConrady.default()),
+         progress=False)
+"""
+
+
+def test_a_killed_track_leaves_no_file_under_its_final_name(tmp_path, marker_recording):
+    """SIGKILL mid-run: no torn track.mp4 or track.csv; the next run removes the temporary files."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.Popen([sys.executable, "-c", _KILLED_TRACK, str(tmp_path)])
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "ready").exists():
+            assert child.poll() is None and time.monotonic() < deadline, "the tracking process did not start"
+            time.sleep(0.1)
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    out = tmp_path / "tracked"
+    left = sorted(p.name for p in out.iterdir())
+    assert "track.mp4" not in left and "track.csv" not in left
+    assert left and all(name.startswith(".track.partial-") for name in left), left
+    frames, _ = marker_recording
+    rw.track(frames_folder(tmp_path, frames[:2]), out, "aruco", rw.Calibration(CAM, LENS), marker_length_m=MARKER_M,
+             progress=False)
+    assert sorted(p.name for p in out.iterdir()) == ["track.csv", "track.mp4"]
+    assert _pair(out) == (2, 2)
+
+
+def frames_folder(tmp_path, frames):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, rgb in enumerate(frames):
+        cv2.imwrite(str(folder / f"{k:03d}.png"), rgb[..., ::-1])
+    return folder
+
+
+def test_a_huge_image_is_refused_from_its_header(tmp_path):
+    from test_cli import huge_png
+
+    image = huge_png(tmp_path / "big.png", 8000, 6000)  # 48 megapixels; never decoded here
+    with pytest.raises(ValueError, match=r"image '.*big.png' is 8000x6000 px \(48 megapixels\), more than the 40"):
+        next(iter(rw.open_frames(image)))
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    image.rename(folder / "a.png")
+    source = rw.open_frames(folder)
+    with pytest.raises(ValueError, match="8000x6000 px"):
+        next(iter(source))
 
 
 def test_bad_sources_and_mismatched_calibrations_are_named(tmp_path):

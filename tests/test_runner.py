@@ -33,7 +33,7 @@ from pandas.testing import assert_frame_equal
 
 from gimbal_lab import runner
 from gimbal_lab.config import Pointing
-from gimbal_lab.runner import ResultsStore, RunInterrupted, dask_executor, run, source_hash, staged_folder
+from gimbal_lab.runner import ResultsStore, RunInterrupted, dask_executor, run, source_hash
 from gimbal_lab.simulation import TrackingConfig
 
 
@@ -313,15 +313,15 @@ def test_a_table_that_does_not_fit_its_config_is_never_served(tmp_path, monkeypa
 
 def test_frame_times_within_rounding_are_accepted():
     """The tolerance on t_s admits k·(1/fps) (two roundings) besides k/fps, and nothing near a frame."""
-    c = cfg(seed=0, fps=30.0)
+    c = cfg(seed=0, camera__fps=30.0)
     frames = pd.DataFrame({name: np.zeros(c.n_frames, dtype) for name, dtype in runner.frame_schema().items()})
     k = np.arange(c.n_frames)
-    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps), c)
-    runner.check_frames(frames.assign(frame=k, t_s=k * (1.0 / c.fps)), c)
-    last = (c.n_frames - 1) / c.fps
-    runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), np.spacing(last)]), c)
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps), c)
+    runner.check_frames(frames.assign(frame=k, t_s=k * (1.0 / c.camera.fps)), c)
+    last = (c.n_frames - 1) / c.camera.fps
+    runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps + np.r_[np.zeros(c.n_frames - 1), np.spacing(last)]), c)
     with pytest.raises(ValueError, match="frame 5 is at t_s"):
-        runner.check_frames(frames.assign(frame=k, t_s=k / c.fps + np.r_[np.zeros(c.n_frames - 1), 1e-9]), c)
+        runner.check_frames(frames.assign(frame=k, t_s=k / c.camera.fps + np.r_[np.zeros(c.n_frames - 1), 1e-9]), c)
 
 
 def test_the_frame_schema_is_the_simulations(reference):
@@ -1044,123 +1044,6 @@ def test_workers_ignore_sigint_and_sigkill_of_the_parent_leaves_no_orphans(tmp_p
 
 
 # ------------------------------------------------------------------------------------------------
-# staged output folders
-# ------------------------------------------------------------------------------------------------
-def _tree(path: Path) -> dict[str, str]:
-    return {p.relative_to(path).as_posix(): p.read_text() for p in sorted(path.rglob("*")) if p.is_file()}
-
-
-def test_staged_folder_swaps_in_the_new_folder_on_success(tmp_path):
-    out = tmp_path / "report"
-    (out / "sub").mkdir(parents=True)
-    (out / "old.txt").write_text("old")
-    (out / "sub" / "old2.txt").write_text("old2")
-    with staged_folder(out) as tmp:
-        assert tmp.is_dir() and tmp != out and tmp.parent == out.parent and not any(tmp.iterdir())
-        (tmp / "new.txt").write_text("new")
-        assert _tree(out) == {"old.txt": "old", "sub/old2.txt": "old2"}  # not yet visible
-    assert _tree(out) == {"new.txt": "new"}  # never a mix of old and new files
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]  # staging and old copy removed
-
-    fresh = tmp_path / "deeper" / "fresh"
-    with staged_folder(fresh) as tmp:
-        (tmp / "a.txt").write_text("a")
-    assert _tree(fresh) == {"a.txt": "a"}
-
-
-@pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
-def test_staged_folder_keeps_the_old_folder_on_error(tmp_path, error):
-    out = tmp_path / "report"
-    out.mkdir()
-    (out / "old.txt").write_text("old")
-    with pytest.raises(error):
-        with staged_folder(out) as tmp:
-            (tmp / "half.txt").write_text("half written")
-            raise error("boom")
-    assert _tree(out) == {"old.txt": "old"}
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
-
-    missing = tmp_path / "never"
-    with pytest.raises(error):
-        with staged_folder(missing) as tmp:
-            raise error("boom")
-    assert not missing.exists()
-
-
-def _finish_reports_together(out: str, tag: str, rounds: int, barrier, errors) -> None:
-    """One writer of ``out``: each round, write a whole report and leave the block at the same
-    instant as the other writers (a barrier); the first writer then checks the folder is whole."""
-    for r in range(rounds):
-        try:
-            barrier.wait()
-            with staged_folder(out) as tmp:
-                for i in range(4):
-                    (tmp / f"{i}.txt").write_text(f"{tag} {r}")
-                barrier.wait()
-        except Exception as exc:  # noqa: BLE001 - reported to the test
-            errors.append(f"{tag} round {r}: {exc!r}")
-        barrier.wait()
-        if tag == "0":
-            texts = {p.name: p.read_text() for p in Path(out).iterdir()}
-            writers = set(texts.values())
-            if sorted(texts) != ["0.txt", "1.txt", "2.txt", "3.txt"] or len(writers) != 1 or \
-                    not next(iter(writers)).endswith(f" {r}"):
-                errors.append(f"round {r}: a mixed or missing report {texts}")
-        barrier.wait()
-
-
-def _writer_process(out, tag, rounds, barrier, queue):
-    errors: list = []
-    _finish_reports_together(out, tag, rounds, barrier, errors)
-    queue.put(errors)
-
-
-@pytest.mark.parametrize("writers", ["processes", "threads"])
-def test_reports_finishing_at_the_same_instant_never_mix_or_fail(tmp_path, writers):
-    """Forced races: 3 writers leave ``staged_folder`` together, 60 times over; every swap must
-    succeed and the folder must always be one writer's whole report of that round."""
-    import multiprocessing
-    import threading
-
-    out, n, rounds = str(tmp_path / "report"), 3, 60
-    if writers == "threads":
-        barrier, errors = threading.Barrier(n), []
-        threads = [threading.Thread(target=_finish_reports_together, args=(out, str(i), rounds, barrier, errors))
-                   for i in range(n)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(timeout=120)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        barrier, queue = ctx.Barrier(n, timeout=60), ctx.Queue()
-        procs = [ctx.Process(target=_writer_process, args=(out, str(i), rounds, barrier, queue)) for i in range(n)]
-        for p in procs:
-            p.start()
-        errors = [e for _ in procs for e in queue.get(timeout=180)]
-        for p in procs:
-            p.join(timeout=30)
-    assert errors == []
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]  # no staging or old copy left
-
-
-def test_staged_folder_removes_leftovers_of_dead_processes_only(tmp_path):
-    out = tmp_path / "report"
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    dead_left = tmp_path / f".report.staging-{dead.pid}"
-    live_left = tmp_path / f".report.staging-{os.getppid()}"  # a live process that is not this one
-    for d in (dead_left, live_left):
-        d.mkdir()
-        (d / "x").write_text("x")
-    with staged_folder(out) as tmp:
-        (tmp / "a.txt").write_text("a")
-    assert not dead_left.exists()
-    assert live_left.exists()
-    assert _tree(out) == {"a.txt": "a"}
-
-
-# ------------------------------------------------------------------------------------------------
 # bad inputs
 # ------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("jobs", [0, -1, True, 1.5, "2"])
@@ -1311,12 +1194,6 @@ def test_run_rejects_bad_executor_and_store(tmp_path):
 def test_dask_executor_rejects_bad_addresses(address):
     with pytest.raises(ValueError, match="scheduler address must be a non-empty string"):
         dask_executor(address)
-
-
-@pytest.mark.parametrize("path", ["", "   "])
-def test_staged_folder_rejects_empty_paths(path):
-    with pytest.raises(ValueError, match="output folder must be a non-empty path"):
-        staged_folder(path)
 
 
 def test_run_interrupted_says_what_was_kept_and_what_a_rerun_reuses(tmp_path):

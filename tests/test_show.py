@@ -18,6 +18,7 @@ from gimbal_lab.simulation import TrackingConfig, TrackingResult, closed_loop, m
 _BASE = TrackingConfig().with_(pointing__kind="paper", camera__lens="default", camera__width=320, camera__height=240,
                                target__start_phase_s=0.4, revolutions=0.25, seed=3)
 _POINTING = {"passive": "stabilised", "active": "paper"}
+from gimbal_lab.video import probe_video
 
 
 def cfg(**changes) -> TrackingConfig:
@@ -132,8 +133,14 @@ def test_side_by_side_refuses_runs_of_different_cells(runs):
 
 
 def test_clips_are_readable_with_every_frame(runs, tmp_path):
+    """MP4 clips are H.264 in 4:2:0 (what browsers play; PyAV reads the stream back), with every
+    frame, the frame rate asked and the same picture (OpenCV decodes them independently)."""
     frames = list(side_by_side(runs["passive"], runs["active"]))
     mp4 = write_clip(tmp_path / "a" / "clip.mp4", iter(frames), fps=30)
+    info = probe_video(mp4)
+    assert (info.codec, info.pixel_format) == ("h264", "yuv420p")
+    assert (info.width, info.height, info.frames) == (frames[0].shape[1], frames[0].shape[0], len(frames))
+    assert info.fps == 30 and info.duration_s == pytest.approx(len(frames) / 30, abs=1 / 30)
     cap = cv2.VideoCapture(str(mp4))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(frames)
     assert (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))) == frames[0].shape[1::-1]
@@ -182,14 +189,26 @@ def test_show_command_writes_a_clip_and_names_bad_arguments(tmp_path):
     toml = tmp_path / "tiny.toml"
     toml.write_text("[paper]\nreplicates = 2\nperiod_s = 0.3\n")  # 2 revolutions of 9 frames
     cmd = [sys.executable, "-m", "gimbal_lab.cli", "show"]
-    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--out", str(tmp_path / "c.gif")],
+    # without --out: an H.264 MP4 under results/show/, named after the cell, and the last line says where
+    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", "store"], cwd=tmp_path,
                         capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0, ok.stderr
+    clip = tmp_path / "results" / "show" / "sphere_default_circular_seed1.mp4"
+    assert ok.stdout.strip().splitlines()[-1] == (f"wrote results/show/sphere_default_circular_seed1.mp4 "
+                                                  f"({clip.stat().st_size / 1e6:.1f} MB, H.264 MP4, plays in a browser)")
+    info = probe_video(clip)
+    assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", 18)
+    ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", str(tmp_path / "store"), "--out",
+                               str(tmp_path / "c.gif")], capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr
     assert "wrote" in ok.stdout and (tmp_path / "c.gif").stat().st_size > 0
-    for args, message in ((["--out", "c.avi"], "--out must end in .mp4 or .gif"),
-                          (["--every", "0"], "--every must be >= 1"),
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.gif", "results", "store", "tiny.toml"]
+    for args, message in ((["--out", "c.avi"], "--out c.avi must end in .mp4 or .gif"),
+                          (["--every", "0"], "argument --every: must be an integer >= 1, got '0'"),
                           (["--config", str(toml), "--seed", "5"], "seed must be one of the study's replicates"),
                           (["--config", str(tmp_path / "missing.toml")], "does not exist")):
         bad = subprocess.run(cmd + args + (["--out", str(tmp_path / "x.mp4")] if "--out" not in args else []),
                              capture_output=True, text=True, timeout=120)
         assert bad.returncode == 2 and message in bad.stderr, bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr, bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr, bad.stderr

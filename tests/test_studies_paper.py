@@ -188,6 +188,7 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
     import cv2
 
     from gimbal_lab.simulation import simulate
+    from gimbal_lab.video import probe_video
 
     study = paper.PaperStudy(replicates=2, period_s=0.3)  # 2 revolutions of 9 frames
     cell = [c for c in paper.grid(study) if (c.camera.lens_label, c.target.trajectory, c.seed) == (*paper.CLIP_CELL, 0)]
@@ -201,6 +202,8 @@ def test_write_clips_shows_each_targets_clip_cell(tmp_path):
         frames, width = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         cap.release()
         assert (frames, width) == (cell[0].n_frames, 2 * cell[0].camera.width + 4)
+        info = probe_video(path)  # what a browser plays
+        assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", cell[0].n_frames)
     # a target whose pair is missing gets no clip (e.g. a study run for one target)
     assert paper.write_clips(tmp_path / "none", results[:1], study) == []
 

@@ -11,32 +11,23 @@ device    :class:`SimulatedGimbalDevice` and :func:`simulated_gimbal`: the lab's
 cli       ``gimbal-lab gimbal-device``
 
 ``driver``, ``device``, ``protocol`` and ``link`` need the ``[mavlink]`` extra (pymavlink,
-pyserial); their names are importable from here and load on first use. docs/design.md,
+pyserial). Every name is importable from here and loads on first use. docs/design.md,
 "MAVLink gimbal", describes the design.
 """
 
 from importlib import import_module
 
-from .frames import (
-    F_NED_NWU,
-    R_CAM_GIMBAL,
-    angular_velocity_to_joint_rates,
-    camera_from_gimbal,
-    camera_rates_to_angular_velocity,
-    euler_from_quaternion,
-    gimbal_attitude_matrix,
-    gimbal_from_camera,
-    joint_rates_to_angular_velocity,
-    joints_to_quaternion,
-    matrix_from_quaternion,
-    quaternion_from_euler,
-    quaternion_from_matrix,
-    quaternion_multiply,
-    quaternion_to_joints,
-    rot_z,
+_FRAMES = (
+    "F_NED_NWU", "R_CAM_GIMBAL", "angular_velocity_to_joint_rates", "camera_from_gimbal",
+    "camera_rates_to_angular_velocity", "euler_from_quaternion", "gimbal_attitude_matrix", "gimbal_from_camera",
+    "joint_rates_to_angular_velocity", "joints_to_quaternion", "matrix_from_quaternion", "quaternion_from_euler",
+    "quaternion_from_matrix", "quaternion_multiply", "quaternion_to_joints", "rot_z",
 )
 
+# Every name loads on first use: ``gimbal-lab --help`` imports this package (for the
+# gimbal-device command) and must not pay for numpy or pymavlink.
 _LAZY = {
+    **dict.fromkeys(_FRAMES, "frames"),
     "MavlinkGimbal": "driver", "AttitudeReport": "driver", "GimbalDeviceInfo": "driver",
     "GimbalLinkError": "driver", "GimbalNotFound": "driver", "GimbalLinkLost": "driver",
     "GimbalCommandFailed": "driver",
@@ -44,13 +35,7 @@ _LAZY = {
     "open_link": "link",
 }
 
-__all__ = [
-    "F_NED_NWU", "R_CAM_GIMBAL", "angular_velocity_to_joint_rates", "camera_from_gimbal",
-    "camera_rates_to_angular_velocity", "euler_from_quaternion", "gimbal_attitude_matrix", "gimbal_from_camera",
-    "joint_rates_to_angular_velocity", "joints_to_quaternion", "matrix_from_quaternion", "quaternion_from_euler",
-    "quaternion_from_matrix", "quaternion_multiply", "quaternion_to_joints", "rot_z",
-    *_LAZY,
-]
+__all__ = list(_LAZY)
 
 
 def __getattr__(name):

@@ -62,7 +62,7 @@ from ..kinematics import GimbalKinematics
 from ..mount import ATTITUDE_GAIN_PER_S, GimbalMount
 from ..platform import BodyMotion
 from . import frames
-from .link import open_link
+from .link import LinkClosed, open_link
 from .protocol import PROGRESS_PERIOD_S, STEP_COMMAND, frame_of_flags, mavlink, new_mavlink
 
 __all__ = ["LinkEffects", "SimulatedGimbalDevice", "simulated_gimbal", "DEFAULT_MAX_RATE_RAD_S",
@@ -550,9 +550,16 @@ class SimulatedGimbalDevice:
         Returns
         -------
         str
-            "stopped" or "end of run" (the simulated time reached the mount's duration; in
-            lock-step the device keeps answering and refuses further steps until stopped).
+            "stopped", "end of run" (the simulated time reached the mount's duration; in
+            lock-step the device keeps answering and refuses further steps until stopped) or
+            "link closed" (the other side of a serial link went away).
         """
+        try:
+            return self._serve(stop)
+        except LinkClosed:
+            return "link closed"
+
+    def _serve(self, stop) -> str:
         if self.lockstep:
             while stop is None or not stop.is_set():
                 self._maybe_heartbeat(time.monotonic())

@@ -18,9 +18,13 @@ import os
 import select
 import socket
 
-__all__ = ["Link", "UdpLink", "SerialLink", "FdLink", "open_link", "parse_udp_address"]
+__all__ = ["Link", "LinkClosed", "UdpLink", "SerialLink", "FdLink", "open_link", "parse_udp_address"]
 
 _MAX_DATAGRAM = 65535
+
+
+class LinkClosed(OSError):
+    """The other side of a serial link went away (a pty whose master was closed, a USB adapter unplugged)."""
 
 
 class Link:
@@ -138,6 +142,7 @@ class SerialLink(Link):
         if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
             raise ValueError(f"baud must be a positive integer, got {baud!r}")
         self.address = address
+        self._serial_error = serial.SerialException
         try:
             self._port = serial.serial_for_url(address, baudrate=baud, timeout=0)
         except (serial.SerialException, ValueError) as exc:
@@ -148,7 +153,10 @@ class SerialLink(Link):
         timeout_s = max(float(timeout_s), 0.0)
         if port.timeout != timeout_s:  # setting it reconfigures the port
             port.timeout = timeout_s
-        first = port.read(1)
+        try:
+            first = port.read(1)
+        except self._serial_error as exc:  # pyserial: "readiness to read but returned no data"
+            raise LinkClosed(errno.EIO, f"{self.address}: the other side went away ({exc})") from None
         if not first:
             return b""
         waiting = port.in_waiting

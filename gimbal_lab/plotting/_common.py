@@ -14,17 +14,33 @@ def results_dir(sub: str = "") -> Path:
     return path
 
 
+class SavedPath(type(Path())):
+    """A path :func:`save_figure` wrote; a notebook shows it as the plain path, not ``PosixPath('...')``."""
+
+    def __repr__(self) -> str:  # IPython's display uses it too
+        return str(self)
+
+
+class SavedPaths(list):
+    """The paths :func:`save_figure` wrote; a notebook shows them one per line, not as a list of
+    ``PosixPath('...')``."""
+
+    def __repr__(self) -> str:  # IPython's display uses it too
+        return "\n".join(str(p) for p in self)
+
+
 def save_figure(fig, name: str, out_dir: str | os.PathLike | None = None, dpi: int = 120, formats=None):
     """Save ``fig`` as ``<out_dir>/<name>.png`` (default folder ``results/figures``).
 
     With ``formats`` (e.g. ``("png", "svg")``: SVG or PDF for papers) every format is written
-    and the list of paths is returned; without it, the PNG's path.
+    and the list of paths is returned; without it, the PNG's path. A notebook cell ending in this
+    call shows the paths as plain text, one per line.
     """
     folder = Path(out_dir) if out_dir is not None else results_dir("figures")
     folder.mkdir(parents=True, exist_ok=True)
-    paths = []
+    paths = SavedPaths()
     for fmt in formats or ("png",):
-        path = folder / f"{name}.{fmt}"
+        path = SavedPath(folder / f"{name}.{fmt}")
         fig.savefig(path, dpi=dpi, bbox_inches="tight")
         paths.append(path)
     return paths if formats else paths[0]

@@ -3,6 +3,8 @@
 A study module defines ``NAME``, ``DESCRIPTION``, its parameters dataclass as ``Study`` (with
 ``from_toml``, ``replicates`` and ``revolutions``), ``grid(params)`` and
 ``run_study(params, out, store, executor, jobs, progress, clips)``, used by ``gimbal-lab run NAME``.
+A scenario file (``gimbal-lab run FILE.toml``) is run by :mod:`gimbal_lab.studies.scenario`, a
+study module whose ``Study`` is the file.
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.stud
 
 
 def load(name: str):
-    """The module of study ``name`` (a ValueError lists the known studies)."""
+    """The module of study ``name`` (a ValueError lists the known studies); for a path ending in
+    ``.toml``, the scenario module that runs a scenario file (:mod:`gimbal_lab.studies.scenario`)."""
+    if name.endswith(".toml"):
+        return import_module("gimbal_lab.studies.scenario")
     if name not in STUDIES:
         raise ValueError(f"unknown study {name!r}; known studies: {', '.join(sorted(STUDIES))}")
     return import_module(STUDIES[name])

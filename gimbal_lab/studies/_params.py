@@ -245,13 +245,24 @@ def verdict_lines(verdicts, reason, unit_in_list: bool = False) -> list[str]:
 
 
 def run_and_report(name: str, desc: str, configs, write_report, study, out, *, store=None, executor=None, jobs=None,
-                   progress=True) -> dict:
-    """Run ``configs`` (reusing ``store``), then ``write_report(folder, results, study)`` into
-    ``out/name`` atomically. Returns a dict with the results, the folder and the paths written."""
-    from ..runner import run, staged_folder
+                   progress=True, extra=None) -> dict:
+    """Run ``configs`` (reusing ``store``), then write the report into ``out/name``.
 
+    ``write_report(folder, results, study)`` (and ``extra(folder, results, study)`` when given,
+    e.g. the paper study's clips) write into a staging folder whose files then replace those of
+    ``out/name``, a folder the lab manages (:class:`gimbal_lab.outputs.ReportFolder`): a folder
+    holding files the lab did not write is refused before any run, nothing else is deleted, and
+    files of an earlier report that this one does not write are kept. Returns a dict with the
+    results, the folder, the paths written and the paths kept.
+    """
+    from ..outputs import ReportFolder
+    from ..runner import run
+
+    folder = ReportFolder(Path(out) / name, "the report folder")
+    folder.check()  # before the runs
     results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc=desc)
-    with staged_folder(Path(out) / name) as tmp:
-        written = write_report(tmp, results, study)
-    final = Path(out) / name
-    return {"results": results, "folder": final, "written": [final / p.relative_to(tmp) for p in written]}
+    with folder.staging() as tmp:
+        write_report(tmp, results, study)
+        if extra is not None:
+            extra(tmp, results, study)
+    return {"results": results, "folder": folder.path, "written": folder.written, "kept": folder.kept}

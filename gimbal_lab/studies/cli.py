@@ -4,30 +4,19 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 from pathlib import Path
 
+from ..cli import positive_int
 from . import STUDIES, load
-
-
-def _positive_int(text: str) -> int:
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
 
 
 def _add_run_options(p) -> None:
     p.add_argument("--out", default="results", metavar="DIR",
-                   help="output folder (default: results): the report goes to DIR/STUDY, finished runs to DIR/store")
+                   help="output folder (default: results): the report goes to DIR/STUDY, finished runs to "
+                        "DIR/store, the log to DIR/run.log")
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
-    p.add_argument("--replicates", type=_positive_int, metavar="N", help="replicates per cell (overrides --config)")
-    p.add_argument("--jobs", type=_positive_int, metavar="N", help="local worker processes (default: every CPU)")
+    p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
+    p.add_argument("--jobs", type=positive_int, metavar="N", help="local worker processes (default: every CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://HOST:8786 (needs the [dask] extra)")
     p.add_argument("--no-cache", dest="cache", action="store_false",
@@ -40,77 +29,107 @@ def _add_run_options(p) -> None:
 def add_parsers(sub) -> None:
     run = sub.add_parser("run", help="run a study and write its tables, claims and figures",
                          description="Run a study: its closed-loop runs (reusing finished ones), then tables, "
-                                     "verdicts and figures written to OUT/STUDY.")
-    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}")
-    run.add_argument("--list", action="store_true", help="list the studies and exit")
+                                     "verdicts and figures written to OUT/STUDY.",
+                         epilog="OUT/STUDY is the lab's own folder: a run replaces the files it writes there and "
+                                "deletes nothing; it refuses a folder holding files it did not write (its list is "
+                                "OUT/STUDY/.gimbal-lab-manifest.json). Files of an earlier run that this one does not "
+                                "write again (the clips after --no-clips) are kept, and the last line names them.")
+    run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}; or a scenario file, FILE.toml")
+    run.add_argument("--list", action="store_true", help="list the studies and the example scenarios and exit")
     _add_run_options(run)
-    run.set_defaults(func=_run)
+    run.set_defaults(func=_run, _parser=run)
     rep = sub.add_parser("reproduce", help="the paper's study (= run paper)",
                          description="The paper's study (§4.1): the same as `gimbal-lab run paper`.")
     _add_run_options(rep)
-    rep.set_defaults(func=_run, study="paper", list=False)
+    rep.set_defaults(func=_run, study="paper", list=False, _parser=rep)
 
 
 def _run(args, parser) -> int:
     if args.list:
-        for name, module in STUDIES.items():
+        for name in STUDIES:
             print(f"{name:12s} {load(name).DESCRIPTION}")
+        from .scenario import shipped_scenarios
+
+        for path, description in shipped_scenarios():
+            shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else str(path)
+            print(f"{shown}  {description}")
         return 0
     if not args.study:
         parser.error("name a study (gimbal-lab run --list shows them)")
-    try:
-        module = load(args.study)
-    except ValueError as exc:
-        parser.error(str(exc))
+    scenario = args.study.endswith(".toml")
+    if not scenario and args.study not in STUDIES:
+        parser.error(f"unknown study {args.study!r}; known studies: {', '.join(sorted(STUDIES))}; "
+                     "or a scenario file, FILE.toml")
     if not args.out or not args.out.strip():
         parser.error("--out must name a folder, got an empty string")
+    from ..outputs import OutputError, ReportFolder, check_writable_folder
+
+    out = Path(args.out)
+    module = load(args.study)
     try:
-        params = module.Study.from_toml(args.config) if args.config else module.Study()
+        if scenario:  # a scenario file is its own config
+            if args.config:
+                raise ValueError("--config sets a built-in study's parameters; a scenario file holds its own")
+            params = module.Study.from_toml(args.study)
+        else:
+            params = module.Study.from_toml(args.config) if args.config else module.Study()
         if args.replicates is not None:
             params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
     except (ValueError, TypeError, FileNotFoundError) as exc:
         parser.error(str(exc))
+    name = params.name if scenario else args.study
+    try:  # before anything is computed: a bad --out fails in one line, at once
+        check_writable_folder(out, "--out")
+        ReportFolder(out / name, "the report folder").check()
+    except OutputError as exc:
+        parser.error(str(exc))
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    from ..runner import ResultsStore, RunInterrupted, dask_executor
+    from ..runner import ResultsStore, dask_executor
 
-    out = Path(args.out)
     store_root = out / "store"
-    store = ResultsStore(store_root, read=args.cache)
+    store = ResultsStore(store_root, read=args.cache)  # a StoreError is one line (gimbal_lab.cli.main)
     log_path = out / "run.log"
-    handler = logging.FileHandler(log_path)
+    try:
+        handler = logging.FileHandler(log_path)
+    except OSError as exc:
+        raise OutputError(f"cannot write the run log {log_path}: {exc.strerror or exc}", log_path) from None
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
     logger = logging.getLogger("gimbal_lab")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
     executor = None
-    if args.scheduler:
-        try:
-            executor = dask_executor(args.scheduler)
-        except (ImportError, ValueError, OSError) as exc:
-            parser.error(f"--scheduler: {exc}")
-    n_runs = len(module.grid(params))
-    where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or os.cpu_count()} local processes"
-    print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per cell, {params.revolutions:g} "
-          f"revolutions each) on {where}; finished runs are kept in {store_root}")
     try:
-        report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
-                                  progress=not args.quiet, clips=args.clips)
-    except RunInterrupted as exc:
-        print(f"\nInterrupted: {exc.kept} of {exc.total} runs are finished and kept in {store_root}; "
-              f"run the same command again to resume.", file=sys.stderr)
-        return 130
-    except KeyboardInterrupt:
-        print(f"\nInterrupted while writing the report; {out / args.study} is unchanged. Run the same command "
-              "again (every run is kept in the store).", file=sys.stderr)
-        return 130
+        if args.scheduler:
+            try:
+                executor = dask_executor(args.scheduler)
+            except (ImportError, ValueError, OSError) as exc:
+                parser.error(f"--scheduler: {exc}")
+        n_runs = len(module.grid(params))
+        where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or os.cpu_count()} local processes"
+        print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per cell, {params.revolutions:g} "
+              f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)
+        try:
+            report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
+                                      progress=not args.quiet, clips=args.clips)
+        except KeyboardInterrupt as exc:
+            from ..outputs import ReportInterrupted
+
+            if isinstance(exc, ReportInterrupted):  # the runs were finished: say so
+                raise ReportInterrupted(f"{exc}; every run is kept in {store_root}: run the same command again "
+                                        "to write the report in seconds") from None
+            raise  # RunInterrupted says what is kept and what a rerun reuses (gimbal_lab.cli.main prints it)
     finally:
         logger.removeHandler(handler)
         handler.close()
         if executor is not None:
             executor.shutdown(wait=False)
-    claims = (report["folder"] / "claims.md").read_text()
-    print(claims)
-    print(f"Wrote {len(report['written'])} files to {report['folder']}; the per-run log is {log_path}.")
+    print((report["folder"] / "claims.md").read_text())
+    kept = report.get("kept", [])
+    note = ""
+    if kept:
+        names = ", ".join(p.relative_to(report["folder"]).as_posix() for p in kept[:4])
+        note = (f"; kept {len(kept)} file(s) of an earlier run that this one did not write again: {names}"
+                + (", ..." if len(kept) > 4 else ""))
+    print(f"Wrote {len(report['written'])} files to {report['folder']}{note}; the per-run log is {log_path}.")
     return 0
-

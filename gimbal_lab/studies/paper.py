@@ -502,19 +502,17 @@ def write_clips(folder, results, study: PaperStudy, progress: bool = False) -> l
 
 def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid (reusing ``store``) and write the report to ``out/paper`` atomically.
+    """Run the grid (reusing ``store``) and write the report to ``out/paper``
+    (:func:`gimbal_lab.studies._params.run_and_report`: only the report's own files are replaced).
 
     With ``clips``, also one MP4 per target of a cell's passive and active runs side by side
-    (:func:`write_clips`). Returns a dict with the results, the tables and the paths written.
+    (:func:`write_clips`). Returns a dict with the results, the folder, the paths written and
+    the files of an earlier report kept (``kept``: the clips after ``clips=False``).
     """
-    from ..runner import run, staged_folder
+    from ._params import run_and_report
 
-    configs = grid(study)
-    results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc="paper study")
-    with staged_folder(Path(out) / NAME) as tmp:
-        written = write_report(tmp, results, study)
-        if clips:
-            written += write_clips(tmp, results, study, progress=progress)
-    final = Path(out) / NAME
-    return {"results": results, "folder": final,
-            "written": [final / p.relative_to(tmp) for p in written]}
+    def add_clips(folder, results, study):
+        write_clips(folder, results, study, progress=progress)
+
+    return run_and_report(NAME, "paper study", grid(study), write_report, study, out, store=store,
+                          executor=executor, jobs=jobs, progress=progress, extra=add_clips if clips else None)

@@ -1,0 +1,362 @@
+"""The command line as a user meets it: every error one line naming the culprit, with no
+traceback and a non-zero exit (2 for a bad argument or output path, found before any work; 1 for
+a failure while working; 130 for Ctrl-C, saying what a rerun reuses); ``--debug`` shows the
+traceback; ``--help`` imports nothing heavy; a run replaces only the files it wrote."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import pytest
+
+from gimbal_lab import cli, runner
+from gimbal_lab.outputs import MANIFEST
+
+HEAVY = ("numpy", "cv2", "pyrender", "scipy", "pandas", "pymavlink", "matplotlib", "pyarrow", "av", "OpenGL")
+TINY = "[paper]\nreplicates = 2\nperiod_s = 0.3\n"  # 32 runs of 2 revolutions of 9 frames
+
+
+def call(argv, capsys) -> tuple[int, str, str]:
+    """Run ``gimbal-lab ARGV`` in this process; (exit status, stdout, stderr)."""
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:
+        status = exc.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def assert_one_line(err: str, *needles: str) -> None:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in lines[0], err
+
+
+@pytest.fixture
+def no_runs(monkeypatch):
+    """Fail the test if any closed-loop run is computed (errors must come before any work)."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("a run was computed")
+
+    monkeypatch.setattr(runner, "run", refuse)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    return path
+
+
+# ------------------------------------------------------------------------------------------------
+# start-up
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["show", "--help"], ["calibrate", "--help"],
+                                  ["track", "--help"], ["gimbal-device", "--help"], ["--version"]])
+def test_help_imports_nothing_heavy(argv):
+    """Building the parser and answering --help loads none of numpy, OpenCV, the renderer, SciPy,
+    pandas, pymavlink, matplotlib, pyarrow or PyAV (each costs seconds under load)."""
+    code = ("import json, sys\nfrom gimbal_lab import cli\ntry:\n    cli.main(sys.argv[1:])\nexcept SystemExit:\n"
+            "    pass\nprint(json.dumps([m for m in sys.modules if m.split('.')[0] in %r]))" % (HEAVY,))
+    done = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == []
+
+
+# ------------------------------------------------------------------------------------------------
+# bad arguments: exit 2, one line, before any work
+# ------------------------------------------------------------------------------------------------
+TRACK = ["track", "in.mp4", "--target", "aruco", "--calibration", "cam.yaml", "--out", "o"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "paper", "--jobs", "0"], "gimbal-lab run: error: argument --jobs: must be an integer >= 1, got '0'"),
+    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, moving-drone, occlusion, paper"),
+    (["run"], "name a study (gimbal-lab run --list shows them)"),
+    (["calibrate", "boards", "--square", "nan"], "argument --square: must be a finite length in metres > 0, got 'nan'"),
+    (["calibrate", "boards", "--square", "0"], "argument --square: must be a finite length in metres > 0, got '0'"),
+    (["calibrate", "boards", "--square", "inf"], "argument --square: must be a finite length in metres > 0, got 'inf'"),
+    (["calibrate", "boards", "--square", "-1"], "argument --square: must be a finite length in metres > 0, got '-1'"),
+    (["calibrate", "boards", "--max-frames", "-1"], "argument --max-frames: must be an integer >= 1, got '-1'"),
+    (["calibrate", "boards", "--step", "0"], "argument --step: must be an integer >= 1, got '0'"),
+    (["calibrate", "boards", "--board", "charuco"], "--board charuco needs --marker METRES"),
+    (["calibrate", "boards", "--board", "charuco", "--marker", "0.03"], "--marker (0.03 m) must be smaller than --square"),
+    (["calibrate", "boards", "--out", "cam.txt"], "--out cam.txt must end in .yaml or .yml or .xml or .json"),
+    (TRACK + ["--max-frames", "-1"], "argument --max-frames: must be an integer >= 1, got '-1'"),
+    (TRACK + ["--marker-length", "nan"], "argument --marker-length: must be a finite length in metres > 0"),
+    (TRACK + ["--radius", "0"], "argument --radius: must be a finite length in metres > 0, got '0'"),
+    (["show", "--every", "0"], "argument --every: must be an integer >= 1, got '0'"),
+    (["show", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
+    (["show", "--out", "clip.avi"], "--out clip.avi must end in .mp4 or .gif"),
+    (["show", "--target", "cube"], "argument --target: invalid choice: 'cube'"),
+])
+def test_bad_arguments_exit_2_in_one_line(argv, message, capsys, tmp_path, monkeypatch, no_runs):
+    monkeypatch.chdir(tmp_path)
+    status, _, err = call(argv, capsys)
+    assert status == 2
+    assert_one_line(err, message)
+    assert sorted(os.listdir(tmp_path)) == []  # nothing written
+
+
+def test_bad_output_paths_are_refused_before_any_work(capsys, tmp_path, monkeypatch, no_runs, tiny):
+    monkeypatch.chdir(tmp_path)
+    Path("afile").write_text("x")
+    Path("adir").mkdir()
+    (Path("adir") / "track.csv").mkdir()
+    cases = [
+        (["run", "paper", "--out", "afile"], "gimbal-lab run: error: --out afile is a file, not a folder"),
+        (["run", "paper", "--out", "/dev/null"], "--out /dev/null is a device or special file, not a folder"),
+        (["run", "paper", "--out", "afile/deeper"], f"--out afile/deeper cannot be made: {tmp_path}/afile is a file"),
+        (["reproduce", "--out", "afile"], "gimbal-lab reproduce: error: --out afile is a file, not a folder"),
+        (["show", "--out", "afile/clip.mp4"], f"{tmp_path}/afile is a file, not a folder"),
+        (["show", "--out", "adir"], "--out adir must end in .mp4 or .gif"),
+        (["show", "--store", "afile"], "gimbal-lab show: error: --store afile is a file, not a folder"),
+        (["show", "--store", "/dev/null"], "--store /dev/null is a device or special file, not a folder"),
+        (TRACK[:-1] + ["afile"], "gimbal-lab track: error: --out afile is a file, not a folder"),
+        (TRACK[:-1] + ["adir"], "--out adir: track.csv is a folder"),
+        (["calibrate", "boards", "--out", "afile/cam.yaml"], f"{tmp_path}/afile is a file, not a folder"),
+    ]
+    for argv, message in cases:
+        status, _, err = call(argv, capsys)
+        assert status == 2, (argv, err)
+        assert_one_line(err, message)
+    Path("clip.mp4").mkdir()
+    status, _, err = call(["show", "--out", "clip.mp4"], capsys)
+    assert status == 2
+    assert_one_line(err, "--out clip.mp4 is a folder; give a file name")
+    Path("results").write_text("not a folder")  # where show's clip goes without --out
+    status, _, err = call(["show"], capsys)
+    assert status == 2
+    assert_one_line(err, "gimbal-lab show: error: the clip results/show/sphere_default_circular_seed0.mp4 cannot be "
+                         f"written: {tmp_path}/results is a file, not a folder")
+    assert sorted(os.listdir(tmp_path)) == ["adir", "afile", "clip.mp4", "results", "tiny.toml"]  # no store, no log
+
+
+@pytest.mark.parametrize("foreign", ["paper/my_notes.txt", "paper/figures/extra.png", "paper/thesis.tex"])
+def test_a_report_folder_holding_foreign_files_is_refused_and_left_alone(foreign, capsys, tmp_path, no_runs, tiny):
+    out = tmp_path / "results"
+    (out / foreign).parent.mkdir(parents=True)
+    (out / foreign).write_text("mine")
+    status, _, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet"], capsys)
+    assert status == 2
+    name = foreign.split("/", 1)[1]
+    assert_one_line(err, f"the report folder {out / 'paper'} holds {name}, which gimbal-lab did not write")
+    assert (out / foreign).read_text() == "mine"
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()) == [foreign]
+
+
+# ------------------------------------------------------------------------------------------------
+# failures while working: exit 1, one line
+# ------------------------------------------------------------------------------------------------
+def test_a_read_only_store_is_one_line(capsys):
+    from test_outputs import unwritable
+
+    shared = Path("/tmp") / f"gimbal-cli-{os.getpid()}"
+    shared.mkdir()
+    try:
+        shared.chmod(0o777)  # the output folder is the user's; only its store is read-only
+        (shared / "tiny.toml").write_text(TINY)
+        store = shared / "store"
+        store.mkdir()
+        # a store that is a file; this also imports, as root, what the command imports before it
+        # opens the store (the unprivileged user cannot read the interpreter's files)
+        (shared / "other").mkdir()
+        (shared / "other" / "store").write_text("x")
+        status, _, err = call(["run", "paper", "--config", str(shared / "tiny.toml"), "--out", str(shared / "other"),
+                               "--quiet"], capsys)
+        assert status == 1, err
+        assert_one_line(err, f"results store: cannot create {shared / 'other' / 'store'}: File exists")
+        runner.source_hash()  # read while this process can still read every file of the package
+        with unwritable(store):
+            status, _, err = call(["run", "paper", "--config", str(shared / "tiny.toml"), "--out", str(shared),
+                                   "--quiet"], capsys)
+        assert status == 1, err
+        assert_one_line(err, f"gimbal-lab run: error: results store: cannot create {store / 'runs'}: Permission denied")
+    finally:
+        import shutil
+
+        shutil.rmtree(shared, ignore_errors=True)
+
+
+def _stopped(exc, store_root):
+    store = runner.ResultsStore(store_root)
+    return exc._stopped(3, 32, store, runner._failure_message(exc, 3, 32, store))
+
+
+@pytest.mark.parametrize("make", [
+    lambda: runner.WorkersDied("worker processes died 3 time(s) in this sweep (last: A process in the process "
+                               "pool was terminated abruptly); the runner gives up after 2 new pools of workers"),
+    lambda: runner.SourceMismatch("a worker runs gimbal_lab source 1234, this sweep 5678", "1234", "5678"),
+    lambda: runner.ResultMismatch("the worker returned a result of another config"),
+], ids=["workers-died", "source-mismatch", "result-mismatch"])
+def test_a_failed_sweep_is_one_line(make, capsys, tmp_path, monkeypatch, tiny):
+    def fail(*args, store=None, **kwargs):
+        raise _stopped(make(), store.root)
+
+    monkeypatch.setattr(runner, "run", fail)
+    status, _, err = call(["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet"], capsys)
+    assert status == 1
+    assert_one_line(err, "gimbal-lab run: error: ", "3 of 32 runs are finished and kept in", "run the same command again")
+
+
+def test_a_store_that_fails_mid_sweep_is_one_line(capsys, tmp_path, monkeypatch, tiny):
+    def fail(*args, store=None, **kwargs):
+        raise runner.StoreError(store.runs / "abc.parquet", OSError(28, "No space left on device"))
+
+    monkeypatch.setattr(runner, "run", fail)
+    status, _, err = call(["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet"], capsys)
+    assert status == 1
+    assert_one_line(err, "results store: cannot write", "abc.parquet: No space left on device")
+
+
+@pytest.mark.parametrize("cache", [True, False])
+def test_ctrl_c_says_what_a_rerun_reuses(cache, capsys, tmp_path, monkeypatch, tiny):
+    def interrupted(*args, store=None, **kwargs):
+        raise runner.RunInterrupted(5, 32, store)
+
+    monkeypatch.setattr(runner, "run", interrupted)
+    argv = ["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet"] + ([] if cache else ["--no-cache"])
+    status, _, err = call(argv, capsys)
+    assert status == 130
+    store = runner.ResultsStore(tmp_path / "store", read=cache)
+    assert_one_line(err, f"gimbal-lab run: {runner.RunInterrupted(5, 32, store)}")
+    if not cache:
+        assert "run the same command again to resume" not in err and "without --no-cache" in err
+
+
+def test_unexpected_errors_are_one_line_and_debug_shows_the_traceback(capsys, tmp_path, monkeypatch, tiny):
+    def boom(*args, **kwargs):
+        raise RuntimeError("boom\nwith a second line")
+
+    monkeypatch.setattr(runner, "run", boom)
+    argv = ["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet"]
+    status, _, err = call(argv, capsys)
+    assert status == 1
+    assert_one_line(err, "gimbal-lab run: error: RuntimeError: boom with a second line",
+                    "run again with gimbal-lab --debug")
+    with pytest.raises(RuntimeError, match="boom"):
+        cli.main(["--debug"] + argv)
+
+
+def test_debug_shows_the_traceback_to_a_user(tmp_path):
+    """As a user runs it: an unexpected error is one line, and a traceback only with --debug."""
+    code = ("import sys\nfrom gimbal_lab import cli, runner\n"
+            "def boom(*a, **k):\n    raise RuntimeError('boom')\n"
+            "runner.run = boom\nsys.exit(cli.main(sys.argv[1:]))")
+    (tmp_path / "tiny.toml").write_text(TINY)
+    argv = ["run", "paper", "--config", str(tmp_path / "tiny.toml"), "--out", str(tmp_path / "out"), "--quiet"]
+    plain = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+    debug = subprocess.run([sys.executable, "-c", code, "--debug", *argv], capture_output=True, text=True, timeout=120)
+    assert plain.returncode == 1 and "Traceback" not in plain.stderr and "RuntimeError: boom" in plain.stderr
+    assert debug.returncode == 1 and "Traceback (most recent call last)" in debug.stderr
+
+
+# ------------------------------------------------------------------------------------------------
+# a real run: only its own files, stale ones kept and named
+# ------------------------------------------------------------------------------------------------
+def test_a_rerun_replaces_only_its_own_files_and_names_the_ones_it_kept(capsys, tmp_path, tiny):
+    out = tmp_path / "results"
+    status, stdout, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--jobs", "2"],
+                               capsys)
+    assert status == 0, err
+    report = out / "paper"
+    manifest = json.loads((report / MANIFEST).read_text())["files"]
+    written = sorted(p.relative_to(report).as_posix() for p in report.rglob("*") if p.is_file() and p.name != MANIFEST)
+    assert sorted(manifest) == written and {"clips/sphere.mp4", "clips/aruco.mp4", "claims.md"} <= set(written)
+    assert stdout.strip().splitlines()[-1] == f"Wrote {len(written)} files to {report}; the per-run log is {out / 'run.log'}."
+    from gimbal_lab.video import probe_video
+
+    info = probe_video(report / "clips" / "sphere.mp4")
+    assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", 18)
+
+    clips = {name: (report / name).read_bytes() for name in ("clips/sphere.mp4", "clips/aruco.mp4")}
+    (report / "claims.md").write_text("edited")  # the lab's own file: replaced
+    status, stdout, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--no-clips"],
+                               capsys)
+    assert status == 0, err
+    assert stdout.strip().splitlines()[-1] == (
+        f"Wrote {len(written) - 2} files to {report}; kept 2 file(s) of an earlier run that this one did not write "
+        f"again: clips/aruco.mp4, clips/sphere.mp4; the per-run log is {out / 'run.log'}.")
+    assert (report / "claims.md").read_text() != "edited"
+    assert {name: (report / name).read_bytes() for name in clips} == clips
+    assert [p.name for p in report.iterdir() if p.name.startswith(".")] == [MANIFEST]
+
+
+# ------------------------------------------------------------------------------------------------
+# frames too large to process
+# ------------------------------------------------------------------------------------------------
+def huge_png(path: Path, width: int, height: int) -> Path:
+    """A valid greyscale PNG of ``width`` x ``height`` black pixels, compressed row by row (it never
+    holds the image: a 20000 x 20000 one is 0.4 MB on disk and takes a few MB to write)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    row, z = bytes(1 + width), zlib.compressobj(9)  # filter byte 0, then black pixels
+    data = b"".join(z.compress(row) for _ in range(height)) + z.flush()
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", data) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("width, height, in_folder, message", [
+    (20000, 20000, False, "has more than 179 megapixels, more than the 40 megapixels gimbal-lab reads"),
+    (20000, 20000, True, "has more than 179 megapixels, more than the 40 megapixels gimbal-lab reads"),
+    (8000, 6000, False, "is 8000x6000 px (48 megapixels), more than the 40 megapixels gimbal-lab reads"),
+])
+def test_a_huge_image_is_refused_before_it_is_decoded(width, height, in_folder, message, tmp_path):
+    """calibrate on one huge image, alone or in a folder: one line, exit 2; for 20000 x 20000 the
+    process never holds the image (its peak memory stays below the decoded colour image, 3 bytes a
+    pixel: 1.2 GB)."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    image = huge_png(folder / "huge.png", width, height)
+    source = folder if in_folder else image
+    code = ("import resource, sys\nfrom gimbal_lab import cli\ntry:\n    status = cli.main(sys.argv[1:])\n"
+            "except SystemExit as exc:\n    status = exc.code\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(status)")
+    done = subprocess.run([sys.executable, "-c", code, "calibrate", str(source), "--out", str(tmp_path / "cam.yaml"),
+                           "--no-progress"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert_one_line(done.stderr, f"gimbal-lab calibrate: error: {str(image)!r} " if width == 20000 else
+                    f"gimbal-lab calibrate: error: image {str(image)!r} ", message)
+    peak_bytes = 1024 * int(done.stdout.strip().splitlines()[-1])  # ru_maxrss is in KiB on Linux
+    if width * height > 10 * 40_000_000:  # far above the interpreter's own 0.1-0.3 GB
+        assert peak_bytes < 3 * width * height
+    assert not (tmp_path / "cam.yaml").exists()
+
+
+def test_ctrl_c_in_show_and_calibrate_says_nothing_was_written(capsys, tmp_path, monkeypatch):
+    from gimbal_lab import realworld, show
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(show, "show", ctrl_c)
+    status, _, err = call(["show", "--out", "c.mp4"], capsys)
+    assert status == 130
+    assert_one_line(err, "gimbal-lab show: interrupted: no clip written (c.mp4 is as it was)")
+    Path("boards").mkdir()
+    Path("cam.yaml").write_text("the earlier calibration")
+    monkeypatch.setattr(realworld, "open_frames", lambda source: [])
+    monkeypatch.setattr(realworld, "calibrate", ctrl_c)
+    status, _, err = call(["calibrate", "boards", "--out", "cam.yaml"], capsys)
+    assert status == 130
+    assert_one_line(err, "gimbal-lab calibrate: interrupted: no calibration written (cam.yaml is as it was)")
+    assert Path("cam.yaml").read_text() == "the earlier calibration"
+
+
+def test_show_checks_its_clip_before_the_runs(tmp_path, no_runs):
+    from gimbal_lab.outputs import OutputError
+    from gimbal_lab.show import show
+
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(OutputError, match=f"the clip {tmp_path}/afile/c.mp4 cannot be written: {tmp_path}/afile is a file"):
+        show(out=tmp_path / "afile" / "c.mp4", progress=False)
