@@ -1105,11 +1105,12 @@ class Estimator(_Part):
         """Whether the estimator and the outer loop know the lens (any strategy but "ignore")."""
         return self.lens_strategy != "ignore"
 
-    def build(self, camera: Camera, target: Target) -> "_Estimator":
+    def build(self, camera: Camera, target: Target, alternative: bool = True) -> "_Estimator":
         """The detector and localiser of ``camera``'s frames of ``target``: image → (pixel centre,
         centre in the camera frame, the other localiser's centre); its ``partial`` says whether
-        the sphere's silhouette was cut."""
-        return _Estimator(self, camera, target)
+        the sphere's silhouette was cut. Without ``alternative`` the sphere's other localiser is
+        not run (its centre is None): one pipeline alone, as its cost is measured."""
+        return _Estimator(self, camera, target, alternative=alternative)
 
 
 class _Estimator:
@@ -1127,7 +1128,7 @@ class _Estimator:
     camera's own image, where the outer loop measures it).
     """
 
-    def __init__(self, estimator: Estimator, camera: Camera, target: Target):
+    def __init__(self, estimator: Estimator, camera: Camera, target: Target, alternative: bool = True):
         from . import detection
 
         self.partial = False
@@ -1146,6 +1147,8 @@ class _Estimator:
                 circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             self._methods = (circle, ellipse) if estimator.sphere_method == "circle" else (ellipse, circle)
+            if not alternative:
+                self._methods = self._methods[:1]
         else:
             self.detector = detection.ArucoTracker(
                 K, marker_length_m=target.marker_length_m, refinement=estimator.aruco_refinement, distortion=known
@@ -1176,7 +1179,8 @@ class _Estimator:
                     return None
                 return None if p is None else np.asarray(p, float)
 
-            p, alt = (locate(m) for m in self._methods)
+            p = locate(self._methods[0])
+            alt = locate(self._methods[1]) if len(self._methods) > 1 else None
             return self._centre(det.center_px), p, alt
         pose = self.detector.detect(image).get(0)
         if pose is None:
