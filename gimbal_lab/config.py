@@ -748,7 +748,7 @@ class Platform(_Part):
 # target
 # ----------------------------------------------------------------------------------------------
 _TARGET_KINDS = ("sphere", "aruco")
-_TRAJECTORIES = ("circular", "diagonal", "cone", "manoeuvring")
+_TRAJECTORIES = ("circular", "diagonal", "stationary", "cone", "manoeuvring")
 
 
 @functools.lru_cache(maxsize=8)
@@ -767,8 +767,10 @@ class Target(_Part):
     Parameters
     ----------
     kind : {"sphere", "aruco"}
-    trajectory : {"circular", "diagonal", "cone", "manoeuvring"}
-        The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the lens sweep's
+    trajectory : {"circular", "diagonal", "stationary", "cone", "manoeuvring"}
+        The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the target held
+        still at the circle's centre, on the home optical axis (the moving drone's static-target
+        arm); the lens sweep's
         cone: a circle about the home optical axis at :data:`CONE_RANGE_M` from the home camera,
         :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis; or the
         occlusion study's manoeuvring target (:class:`gimbal_lab.trajectories.ManoeuvringTarget`,

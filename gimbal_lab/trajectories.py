@@ -6,7 +6,10 @@ Both motions are periodic with period T and centred on c = (3.0, 0, 2.0) m in th
 * circular: a vertical circle of radius R in the plane x = c_x, facing the camera,
   p(t) = c + R (0, cos φ, sin φ), φ = 2πt/T (starts at the camera's left, turns upwards);
 * diagonal: a straight round trip through c, p(t) = c + A sin φ with A = (1.0, 0.8, 0.5) m,
-  so depth runs from 2 to 4 m and the target passes the image centre twice per period.
+  so depth runs from 2 to 4 m and the target passes the image centre twice per period;
+* stationary: the target held still at c, on the home optical axis, p(t) = c (the moving drone's
+  static-target arm, docs/design.md "The moving drone's gain, decomposed": the only image motion
+  is the body's).
 
 A third motion, :class:`ManoeuvringTarget`, is not periodic: seeded constant-velocity legs
 joined by coordinated turns inside a box around c (docs/design.md, "Occlusion and manoeuvres").
@@ -27,7 +30,7 @@ __all__ = ["Trajectory", "ManoeuvringTarget", "R_WORLD_MARKER", "target_pose"]
 #: Orientation of the marker in the world: columns are the marker's x, y, z axes.
 R_WORLD_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
-_KINDS = ("circular", "diagonal")
+_KINDS = ("circular", "diagonal", "stationary")
 
 
 def _vec3(name, value) -> tuple[float, float, float]:
@@ -43,9 +46,10 @@ class Trajectory:
 
     Parameters
     ----------
-    kind : {"circular", "diagonal"}
+    kind : {"circular", "diagonal", "stationary"}
     period_s : float
-        Time of one revolution (circular) or one round trip (diagonal), > 0.
+        Time of one revolution (circular) or one round trip (diagonal), > 0; a stationary
+        target's period only sets the run's length in revolutions.
     centre_m : (3,) floats
         Centre of the motion in the world, metres.
     radius_m : float
@@ -89,6 +93,12 @@ class Trajectory:
         """The study's straight round trip through the centre (docs/design.md)."""
         return cls("diagonal", period_s=period_s, centre_m=centre_m, amplitude_m=amplitude_m)
 
+    @classmethod
+    def stationary(cls, period_s: float = 2.0, centre_m=(3.0, 0.0, 2.0)) -> "Trajectory":
+        """The target held still at ``centre_m``, the circle's centre (docs/design.md, "The moving
+        drone's gain, decomposed")."""
+        return cls("stationary", period_s=period_s, centre_m=centre_m)
+
     def _phase(self, t_s):
         t = np.asarray(t_s, dtype=float)
         if not np.all(np.isfinite(t)):
@@ -101,6 +111,8 @@ class Trajectory:
         c = np.asarray(self.centre_m)
         if self.kind == "circular":
             offset = self.radius_m * np.stack((np.zeros_like(phi), np.cos(phi), np.sin(phi)), axis=-1)
+        elif self.kind == "stationary":
+            offset = np.zeros(phi.shape + (3,))
         else:
             offset = np.sin(phi)[..., None] * np.asarray(self.amplitude_m)
         return c + offset
@@ -111,6 +123,8 @@ class Trajectory:
         w = 2.0 * np.pi / self.period_s
         if self.kind == "circular":
             return self.radius_m * w * np.stack((np.zeros_like(phi), -np.sin(phi), np.cos(phi)), axis=-1)
+        if self.kind == "stationary":
+            return np.zeros(phi.shape + (3,))
         return (w * np.cos(phi))[..., None] * np.asarray(self.amplitude_m)
 
 
