@@ -446,3 +446,13 @@ def test_cpu_seconds_per_frame_times_every_frame_each_pass_and_refuses_bad_input
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="repeats"):
             _params.cpu_seconds_per_frame(calls.append, images, repeats=bad)
+
+
+def test_all_configs_are_the_grid_and_the_pipelines_runs():
+    from gimbal_lab.studies import moving_drone as md
+
+    study = paper.PaperStudy(replicates=2)
+    assert paper.all_configs(study) == paper.grid(study) + paper.pipeline_grid(study)
+    assert len(paper.all_configs(study)) == 16 * 2 + 8 * 2
+    drone = md.MovingDroneStudy(replicates=2)
+    assert len(md.all_configs(drone)) == 36 * 2 + 24 * 2

@@ -65,6 +65,7 @@ __all__ = [
     "grid",
     "ARMS",
     "arm_grid",
+    "all_configs",
     "arm_of",
     "PIPELINES",
     "pipeline_table",
@@ -182,6 +183,11 @@ def arm_grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOT
     return [study.config(target, motion, mount, "global", seed, arm=arm)
             for arm in ARMS[1:] for target in targets for motion in motions for mount in ("stabilised", "active")
             for seed in study.seeds]
+
+
+def all_configs(study: MovingDroneStudy | None = None) -> list[TrackingConfig]:
+    """Every run of the study: the grid and the two arms of the gain's decomposition."""
+    return grid(study) + arm_grid(study)
 
 
 def arm_of(config: TrackingConfig) -> str:
@@ -646,5 +652,5 @@ def run_study(study: MovingDroneStudy, out, *, store=None, executor=None, jobs=N
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
     Returns a dict with the results, the folder and the paths written.
     """
-    return _params.run_and_report(NAME, "moving drone", grid(study) + arm_grid(study), write_report, study, out,
+    return _params.run_and_report(NAME, "moving drone", all_configs(study), write_report, study, out,
                                   store=store, executor=executor, jobs=jobs, progress=progress)

@@ -44,6 +44,7 @@ __all__ = [
     "PaperStudy",
     "grid",
     "pipeline_grid",
+    "all_configs",
     "pipeline_table",
     "pipeline_summary",
     "pipeline_costs",
@@ -169,6 +170,11 @@ def pipeline_grid(study: PaperStudy | None = None, targets=("sphere", "aruco")) 
             raise ValueError(f"targets must be 'sphere' or 'aruco', got {target!r}")
     return [study.config(target, "distorted", traj, mode, seed, best=True)
             for target in targets for traj in TRAJECTORIES for mode in MODES for seed in study.seeds]
+
+
+def all_configs(study: PaperStudy | None = None) -> list[TrackingConfig]:
+    """Every run of the study: the 16-cell grid and the known-lens pipelines' runs."""
+    return grid(study) + pipeline_grid(study)
 
 
 def is_study_run(config: TrackingConfig) -> bool:
@@ -832,6 +838,6 @@ def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, p
     def add_clips(folder, results, study):
         write_clips(folder, results, study, progress=progress)
 
-    return run_and_report(NAME, "paper study", grid(study) + pipeline_grid(study), write_report, study, out,
+    return run_and_report(NAME, "paper study", all_configs(study), write_report, study, out,
                           store=store, executor=executor, jobs=jobs, progress=progress,
                           extra=add_clips if clips else None)
