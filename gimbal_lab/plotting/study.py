@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import matplotlib.pyplot as plt
+import matplotlib.ticker
 import numpy as np
 
 from ._common import interactive
@@ -244,6 +245,8 @@ def plot_pipeline_costs(summary, fig=None):
             ax.errorbar(row.cost_ms, y, yerr=yerr, fmt=_CONDITION_MARKERS.get((row.distortion, row.trajectory), "o"),
                         color=_PIPELINE_COLOURS.get(row.pipeline, "k"), ms=6, capsize=2, mec="k", mew=0.4)
         ax.set_yscale("log")
+        for axis in (ax.yaxis.set_major_formatter, ax.yaxis.set_minor_formatter):  # plain millimetres, not 1.2×10¹
+            axis(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.set_xlim(0, 1.15 * float(np.nanmax(df["cost_ms"])))
         ax.set_xlabel("detection + localisation [ms CPU per frame]")
         ax.set_ylabel("|d_est − d_true| [mm], frames all detected")
