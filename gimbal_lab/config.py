@@ -1107,12 +1107,12 @@ class Estimator(_Part):
         """Whether the estimator and the outer loop know the lens (any strategy but "ignore")."""
         return self.lens_strategy != "ignore"
 
-    def build(self, camera: Camera, target: Target, alternative: bool = True) -> "_Estimator":
+    def build(self, camera: Camera, target: Target, alt: bool = True) -> "_Estimator":
         """The detector and localiser of ``camera``'s frames of ``target``: image → (pixel centre,
         centre in the camera frame, the other localiser's centre); its ``partial`` says whether
-        the sphere's silhouette was cut. Without ``alternative`` the sphere's other localiser is
+        the sphere's silhouette was cut. With ``alt=False`` the sphere's other localiser is
         not run (its centre is None): one pipeline alone, as its cost is measured."""
-        return _Estimator(self, camera, target, alternative=alternative)
+        return _Estimator(self, camera, target, alt=alt)
 
 
 class _Estimator:
@@ -1130,7 +1130,7 @@ class _Estimator:
     camera's own image, where the outer loop measures it).
     """
 
-    def __init__(self, estimator: Estimator, camera: Camera, target: Target, alternative: bool = True):
+    def __init__(self, estimator: Estimator, camera: Camera, target: Target, alt: bool = True):
         from . import detection
 
         self.partial = False
@@ -1149,7 +1149,7 @@ class _Estimator:
                 circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             self._methods = (circle, ellipse) if estimator.sphere_method == "circle" else (ellipse, circle)
-            if not alternative:
+            if not alt:
                 self._methods = self._methods[:1]
         else:
             self.detector = detection.ArucoTracker(

@@ -456,3 +456,20 @@ def test_all_configs_are_the_grid_and_the_pipelines_runs():
     assert len(paper.all_configs(study)) == 16 * 2 + 8 * 2
     drone = md.MovingDroneStudy(replicates=2)
     assert len(md.all_configs(drone)) == 36 * 2 + 24 * 2
+
+
+def test_an_estimator_built_without_the_other_localiser_gives_the_same_estimate():
+    """What pipeline_costs times: Estimator.build(alt=False) runs one localiser, with the same result."""
+    from gimbal_lab.config import Estimator
+    from gimbal_lab.simulation import simulate
+    from gimbal_lab.studies._params import run_frames
+
+    study = paper.PaperStudy(replicates=2, period_s=0.3)
+    c = study.config("sphere", "distorted", "circular", "passive", 0)
+    images = run_frames(simulate(c), 9, 12)
+    best = Estimator(sphere_method="ellipse", lens_strategy="undistort")
+    both, alone = best.build(c.camera, c.target), best.build(c.camera, c.target, alt=False)
+    for image in images:
+        (px_a, p_a, other_a), (px_b, p_b, other_b) = both(image), alone(image)
+        assert np.array_equal(px_a, px_b) and np.array_equal(p_a, p_b)
+        assert other_a is not None and other_b is None

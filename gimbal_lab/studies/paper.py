@@ -440,7 +440,7 @@ def pipeline_costs(results, repeats: int | None = None) -> pd.DataFrame:
         for pipeline in PIPELINES:
             est = _pipeline_estimator(c, pipeline)
             if est not in seconds:
-                seconds[est] = cpu_seconds_per_frame(est.build(c.camera, c.target, alternative=False), images, repeats)
+                seconds[est] = cpu_seconds_per_frame(est.build(c.camera, c.target, alt=False), images, repeats)
             what = (("circle method" if est.sphere_method == "circle" else "exact cone fit") if c.target.kind == "sphere"
                     else f"PnP on {est.aruco_refinement} corners")
             lens = "lens undistorted" if est.lens_strategy == "undistort" else "no lens model"
