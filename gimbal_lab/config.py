@@ -56,7 +56,7 @@ from .trajectories import Trajectory
 __all__ = ["TrackingConfig", "Camera", "Gimbal", "Platform", "Target", "Pointing", "GimbalLink", "Estimator",
            "check_parts",
            "SCHEMA", "CONE_RANGE_M", "CONE_FIELD_FRACTION", "BODY_POSITION_M", "PLATE_TO_MARKER", "world_T_base",
-           "make_target_filter", "Measurement"]
+           "make_target_filter", "Measurement", "STREAMS", "seed_stream", "streams"]
 
 #: Version of the config's layout; part of :attr:`TrackingConfig.key` (the flat config of before
 #: the parts had no schema, and its keys differ).
@@ -104,6 +104,51 @@ def _choice(name, value, allowed):
     if not isinstance(value, str) or value not in allowed:
         raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
     return value
+
+
+# ----------------------------------------------------------------------------------------------
+# a replicate's random streams
+# ----------------------------------------------------------------------------------------------
+#: The named random streams of a replicate, in the order of ``SeedSequence(seed).spawn``: the
+#: target's start phase, the sensor noise, the body's sway and vibration, the gyro noise, the
+#: manoeuvring target's plan, the flight's start point (docs/design.md, "Repairs").
+STREAMS = ("phase", "noise", "body", "gyro", "plan", "flight_phase")
+
+
+def seed_stream(seed: int, name: str) -> np.random.SeedSequence:
+    """The named child of ``numpy.random.SeedSequence(seed)`` that a replicate's ``name`` draw comes from.
+
+    Child i of ``SeedSequence(seed)`` (``spawn_key=(i,)``, what ``SeedSequence(seed).spawn(n)[i]``
+    gives) belongs to ``STREAMS[i]``. Children of one seed differ by their spawn key, and a seed's
+    children differ from another seed's by their entropy, so no two (seed, name) pairs share a
+    stream. (Before, each draw built its own sequence from a short list of integers, and
+    replicate 2's phase, ``default_rng([1, 2])``, was replicate 1's gyro, ``SeedSequence([1, 2])``.)
+
+    Parameters
+    ----------
+    seed : int
+        The replicate's seed, >= 0.
+    name : {"phase", "noise", "body", "gyro", "plan", "flight_phase"}
+        The draw (:data:`STREAMS`).
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        Give it to ``numpy.random.default_rng``; the same seed and name always give the same draws.
+
+    Examples
+    --------
+    >>> seed_stream(3, "gyro").generate_state(2).tolist() == streams(3)["gyro"].generate_state(2).tolist()
+    True
+    """
+    seed = _number("seed", seed, low=0, high=2**63 - 1, integer=True)
+    _choice("stream name", name, STREAMS)
+    return np.random.SeedSequence(seed, spawn_key=(STREAMS.index(name),))
+
+
+def streams(seed: int) -> dict[str, np.random.SeedSequence]:
+    """Every named stream of replicate ``seed`` (:func:`seed_stream`), by name."""
+    return {name: seed_stream(seed, name) for name in STREAMS}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -621,10 +666,11 @@ class Gimbal(_Part):
 
     def mount(self, body: BodyMotion, mount: str, n_steps: int, seed: int):
         """The :class:`gimbal_lab.mount.GimbalMount` of a run: these axes on ``body`` in ``mount``
-        mode for ``n_steps`` inner steps; the gyro noise drawn from ``seed`` (its stream 2)."""
+        mode for ``n_steps`` inner steps; the gyro noise drawn from ``seed``'s "gyro" stream
+        (:func:`seed_stream`)."""
         from .mount import GimbalMount
 
-        gyro_rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
+        gyro_rng = np.random.default_rng(seed_stream(seed, "gyro"))
         return GimbalMount(self.kinematics, body, mount, 1.0 / self.inner_rate_hz, n_steps,
                            self.gyro_noise_rad_s_rthz, gyro_rng, plants=self.plants, rate_gains=self.rate_gains)
 
@@ -691,28 +737,28 @@ class Platform(_Part):
 
     def body(self, seed: int) -> BodyMotion:
         """The body's motion (:class:`gimbal_lab.platform.BodyMotion`) of a run with ``seed`` (its
-        stream 1 draws the sway and vibration)."""
+        "body" stream, :func:`seed_stream`, draws the sway and vibration)."""
         if not self.moving:
             return BodyMotion.static(self.position_m)
-        body_seed = int(np.random.SeedSequence([seed, 1]).generate_state(1)[0])
         parts = {name: getattr(self, name) for name in _MOTIONS[self.motion]}
-        return BodyMotion(position_m=self.position_m, seed=body_seed, time_offset_s=self.motion_phase_s, **parts)
+        return BodyMotion(position_m=self.position_m, seed=seed_stream(seed, "body"), time_offset_s=self.motion_phase_s,
+                          **parts)
 
 
 # ----------------------------------------------------------------------------------------------
 # target
 # ----------------------------------------------------------------------------------------------
 _TARGET_KINDS = ("sphere", "aruco")
-_TRAJECTORIES = ("circular", "diagonal", "cone", "manoeuvring")
+_TRAJECTORIES = ("circular", "diagonal", "stationary", "cone", "manoeuvring")
 
 
 @functools.lru_cache(maxsize=8)
 def _manoeuvring_path(seed: int, duration_s: float):
-    """The manoeuvring target of a run (its plan drawn once per seed and length)."""
+    """The manoeuvring target of a run (its plan drawn once per seed and length, from the seed's
+    "plan" stream, :func:`seed_stream`)."""
     from .trajectories import ManoeuvringTarget
 
-    plan_seed = int(np.random.SeedSequence([seed, 3]).generate_state(1)[0])
-    return ManoeuvringTarget(seed=plan_seed, duration_s=duration_s)
+    return ManoeuvringTarget(seed=seed_stream(seed, "plan"), duration_s=duration_s)
 
 
 @dataclass(frozen=True)
@@ -722,8 +768,10 @@ class Target(_Part):
     Parameters
     ----------
     kind : {"sphere", "aruco"}
-    trajectory : {"circular", "diagonal", "cone", "manoeuvring"}
-        The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the lens sweep's
+    trajectory : {"circular", "diagonal", "stationary", "cone", "manoeuvring"}
+        The paper's two motions (:class:`gimbal_lab.trajectories.Trajectory`); the target held
+        still at the circle's centre, on the home optical axis (the moving drone's static-target
+        arm); the lens sweep's
         cone: a circle about the home optical axis at :data:`CONE_RANGE_M` from the home camera,
         :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field off the axis (or
         ``cone_half_angle_rad``); or the
@@ -1275,8 +1323,10 @@ class TrackingConfig:
     revolutions : float
         Periods of the target's motion simulated (> 0). The study: 2, the first acquisition.
     seed : int
-        Seed of the run's draws (>= 0): sensor noise; through its streams the body's sway
-        (:meth:`Platform.body`), the gyro noise (:meth:`Gimbal.mount`) and the manoeuvring plan.
+        Seed of the run's draws (>= 0), each from its own named stream (:func:`seed_stream`): the
+        sensor noise, the body's sway (:meth:`Platform.body`), the gyro noise (:meth:`Gimbal.mount`)
+        and the manoeuvring plan; the studies draw the start phase and the flight's start point
+        from the same seed's "phase" and "flight_phase" streams.
 
     Notes
     -----

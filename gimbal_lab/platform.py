@@ -51,10 +51,14 @@ def _number(name, value, low=None, low_open=False):
 
 
 def _rng(seed):
+    """A Generator from an integer seed >= 0, a numpy SeedSequence (a replicate's named stream,
+    :func:`gimbal_lab.config.seed_stream`) or a Generator (used as it is)."""
     if isinstance(seed, np.random.Generator):
         return seed
+    if isinstance(seed, np.random.SeedSequence):
+        return np.random.default_rng(seed)
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0 or a numpy Generator, got {seed!r}")
+        raise ValueError(f"seed must be an integer >= 0, a numpy SeedSequence or a numpy Generator, got {seed!r}")
     return np.random.default_rng(int(seed))
 
 
@@ -69,7 +73,7 @@ class ShapedNoise:
         Natural frequency fn of the shaping filter, Hz, > 0.
     damping : float
         Damping ratio ζ, > 0.
-    rng : numpy.random.Generator or int
+    rng : numpy.random.Generator, numpy.random.SeedSequence or int
     n_components : int
         Sinusoids in the sum (frequencies spread over [0, 10·fn]).
 
@@ -364,8 +368,9 @@ class BodyMotion:
     sway : HoverSway or None
     vibration : Vibration or None
     flight : WaypointFlight or None
-    seed : int
-        Seed of every random draw (same seed → same motion).
+    seed : int or numpy.random.SeedSequence
+        Seed of every random draw (same seed → same motion); a run passes its "body" stream
+        (:meth:`gimbal_lab.config.Platform.body`).
     time_offset_s : float
         The motion at time t is the unshifted motion's at t + ``time_offset_s`` (replicates of a
         flight start at different points of the pass).

@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .config import seed_stream
 from .mount import exposure_pose_fn
 from .simulation import TrackingConfig, TrackingResult, make_renderer, render_frame
 
@@ -88,7 +89,7 @@ def replay(result: TrackingResult, renderer=None, every: int = 1, start: int = 0
             return
         kin = config.gimbal.kinematics
         body = config.body
-        rng = np.random.default_rng(config.seed)
+        rng = np.random.default_rng(seed_stream(config.seed, "noise"))  # the run's noise stream
         q0_cols = ["q0_yaw_rad", "q0_roll_rad", "q0_pitch_rad"]
         w_cols = ["w_yaw_rad_s", "w_roll_rad_s", "w_pitch_rad_s"]
         blank = np.zeros((camera.height, camera.width, 3), np.uint8)

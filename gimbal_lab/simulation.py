@@ -23,8 +23,10 @@ to the world through the camera pose at that same instant. The metric is |d_est 
 the distance from the camera's optical centre to the target's centre (paper §4.1).
 
 Replicates: a config's ``target.start_phase_s`` shifts the target's motion in time and its
-``seed`` draws the sensor noise, so replicates of one cell differ only by those draws
-(:func:`gimbal_lab.studies.paper.grid` draws both from the replicate's seed).
+``seed`` draws the sensor noise, the body's motion, the gyro noise and a manoeuvring plan, each
+from its own named stream (:func:`gimbal_lab.config.seed_stream`), so replicates of one cell differ
+only by those draws (:func:`gimbal_lab.studies.paper.grid` draws the phase from the replicate's
+"phase" stream).
 
 Rendering needs an OpenGL context: a process that ran :func:`simulate` must not fork
 (see :mod:`gimbal_lab.scene`); :mod:`gimbal_lab.runner` runs configs on spawned workers.
@@ -41,7 +43,7 @@ import numpy as np
 import pandas as pd
 
 from .camera import project
-from .config import CONE_FIELD_FRACTION, CONE_RANGE_M, Measurement, TrackingConfig, world_T_base  # noqa: F401
+from .config import CONE_FIELD_FRACTION, CONE_RANGE_M, Measurement, TrackingConfig, seed_stream, world_T_base  # noqa: F401
 from .trajectories import target_pose
 
 __all__ = ["TrackingConfig", "TrackingResult", "simulate", "render_frame", "FRAME_COLUMNS", "world_T_base",
@@ -307,7 +309,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     """
     timing = {"render_s": 0.0, "detect_s": 0.0} if timing is None else timing
     camera, gimbal = config.camera, config.gimbal
-    rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(seed_stream(config.seed, "noise"))
     estimate = config.estimator.build(camera, config.target)
     n_steps = int(round(config.n_frames / camera.fps * gimbal.inner_rate_hz))
     mount = gimbal.mount(config.body, config.pointing.mount, n_steps, config.seed)

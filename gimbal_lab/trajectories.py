@@ -6,7 +6,10 @@ Both motions are periodic with period T and centred on c = (3.0, 0, 2.0) m in th
 * circular: a vertical circle of radius R in the plane x = c_x, facing the camera,
   p(t) = c + R (0, cos φ, sin φ), φ = 2πt/T (starts at the camera's left, turns upwards);
 * diagonal: a straight round trip through c, p(t) = c + A sin φ with A = (1.0, 0.8, 0.5) m,
-  so depth runs from 2 to 4 m and the target passes the image centre twice per period.
+  so depth runs from 2 to 4 m and the target passes the image centre twice per period;
+* stationary: the target held still at c, on the home optical axis, p(t) = c (the moving drone's
+  static-target arm, docs/design.md "The moving drone's gain, decomposed": the only image motion
+  is the body's).
 
 A third motion, :class:`ManoeuvringTarget`, is not periodic: seeded constant-velocity legs
 joined by coordinated turns inside a box around c (docs/design.md, "Occlusion and manoeuvres").
@@ -27,7 +30,7 @@ __all__ = ["Trajectory", "ManoeuvringTarget", "R_WORLD_MARKER", "target_pose"]
 #: Orientation of the marker in the world: columns are the marker's x, y, z axes.
 R_WORLD_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
-_KINDS = ("circular", "diagonal")
+_KINDS = ("circular", "diagonal", "stationary")
 
 
 def _vec3(name, value) -> tuple[float, float, float]:
@@ -43,9 +46,10 @@ class Trajectory:
 
     Parameters
     ----------
-    kind : {"circular", "diagonal"}
+    kind : {"circular", "diagonal", "stationary"}
     period_s : float
-        Time of one revolution (circular) or one round trip (diagonal), > 0.
+        Time of one revolution (circular) or one round trip (diagonal), > 0; a stationary
+        target's period only sets the run's length in revolutions.
     centre_m : (3,) floats
         Centre of the motion in the world, metres.
     radius_m : float
@@ -89,6 +93,12 @@ class Trajectory:
         """The study's straight round trip through the centre (docs/design.md)."""
         return cls("diagonal", period_s=period_s, centre_m=centre_m, amplitude_m=amplitude_m)
 
+    @classmethod
+    def stationary(cls, period_s: float = 2.0, centre_m=(3.0, 0.0, 2.0)) -> "Trajectory":
+        """The target held still at ``centre_m``, the circle's centre (docs/design.md, "The moving
+        drone's gain, decomposed")."""
+        return cls("stationary", period_s=period_s, centre_m=centre_m)
+
     def _phase(self, t_s):
         t = np.asarray(t_s, dtype=float)
         if not np.all(np.isfinite(t)):
@@ -101,6 +111,8 @@ class Trajectory:
         c = np.asarray(self.centre_m)
         if self.kind == "circular":
             offset = self.radius_m * np.stack((np.zeros_like(phi), np.cos(phi), np.sin(phi)), axis=-1)
+        elif self.kind == "stationary":
+            offset = np.zeros(phi.shape + (3,))
         else:
             offset = np.sin(phi)[..., None] * np.asarray(self.amplitude_m)
         return c + offset
@@ -111,6 +123,8 @@ class Trajectory:
         w = 2.0 * np.pi / self.period_s
         if self.kind == "circular":
             return self.radius_m * w * np.stack((np.zeros_like(phi), -np.sin(phi), np.cos(phi)), axis=-1)
+        if self.kind == "stationary":
+            return np.zeros(phi.shape + (3,))
         return (w * np.cos(phi))[..., None] * np.asarray(self.amplitude_m)
 
 
@@ -144,8 +158,9 @@ class ManoeuvringTarget:
 
     Parameters
     ----------
-    seed : int or numpy.random.Generator
-        Seed of the plan; the same integer seed gives the same path.
+    seed : int, numpy.random.SeedSequence or numpy.random.Generator
+        Seed of the plan; the same integer seed (or sequence) gives the same path. A run passes its
+        "plan" stream (:func:`gimbal_lab.config.seed_stream`).
     speed_m_s : float
         Constant speed v, m/s, > 0.
     turn_accel_m_s2 : float
@@ -191,11 +206,11 @@ class ManoeuvringTarget:
 
     def __post_init__(self):
         seed = self.seed
-        if not isinstance(seed, np.random.Generator):
+        if not isinstance(seed, (np.random.Generator, np.random.SeedSequence)):
             if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
-                raise TypeError(f"seed must be an integer >= 0 or a numpy Generator, got {seed!r}")
+                raise TypeError(f"seed must be an integer >= 0, a numpy SeedSequence or a numpy Generator, got {seed!r}")
             if seed < 0:
-                raise ValueError(f"seed must be an integer >= 0 or a numpy Generator, got {seed!r}")
+                raise ValueError(f"seed must be an integer >= 0, a numpy SeedSequence or a numpy Generator, got {seed!r}")
         object.__setattr__(self, "speed_m_s", _positive("speed_m_s", self.speed_m_s))
         object.__setattr__(self, "turn_accel_m_s2",
                            _positive("turn_accel_m_s2", self.turn_accel_m_s2, upper=MAX_TURN_ACCEL_M_S2))
@@ -211,7 +226,8 @@ class ManoeuvringTarget:
             raise ValueError(f"half_extent_m must exceed two turn radii (2 v²/a = {2 * self.turn_radius_m:.3g} m) "
                              f"on every axis, got {self.half_extent_m!r}; lower speed_m_s or raise turn_accel_m_s2")
         object.__setattr__(self, "half_extent_m", half)
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(int(seed))
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(
+            seed if isinstance(seed, np.random.SeedSequence) else int(seed))
         object.__setattr__(self, "_plan", self._draw_plan(rng))
 
     @property

@@ -12,7 +12,7 @@ import pytest
 
 from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt
 from gimbal_lab.config import (
-    Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, check_parts,
+    STREAMS, Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, check_parts, seed_stream, streams,
 )
 from gimbal_lab.control import AxisPlant, PIDGains, RateLoop
 from gimbal_lab.kinematics import GimbalKinematics
@@ -383,12 +383,13 @@ def test_a_calibrated_fisheye_renders_where_opencv_fisheye_projects(tmp_path):
 # ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("motion", ["static", "hover", "vibration", "flight"])
 def test_the_platform_builds_the_body_the_flat_config_built(motion):
-    """Oracle: BodyMotion's own constructors as the flat config called them (seed stream 1, the
-    replicate's phase as the time offset, a still body at the platform's height)."""
+    """Oracle: BodyMotion's own constructors as the flat config called them (the seed's "body"
+    child of SeedSequence(seed).spawn, the replicate's phase as the time offset, a still body at the
+    platform's height)."""
     import dataclasses
 
     seed, phase = 7, 3.25
-    body_seed = int(np.random.SeedSequence([seed, 1]).generate_state(1)[0])
+    body_seed = np.random.SeedSequence(seed).spawn(len(STREAMS))[STREAMS.index("body")]  # the "body" child
     altitude = 2.0 if motion == "flight" else 3.5
     platform = Platform(motion=motion, motion_phase_s=phase, altitude_m=altitude)
     expected = {
@@ -573,3 +574,69 @@ def test_equal_configs_are_equal_by_value_and_distinct_ones_are_not():
               a.with_(platform__sway__damping=0.5), a.with_(pointing__kind="fixed")]
     assert len({a, *others}) == 1 + len(others)
     assert len({a.key, *(c.key for c in others)}) == 1 + len(others)
+
+
+# ----------------------------------------------------------------------------------------------
+# a replicate's named random streams (docs/design.md, "Repairs")
+# ----------------------------------------------------------------------------------------------
+def test_named_streams_are_the_children_of_the_seeds_sequence():
+    """Oracle: numpy's own SeedSequence(seed).spawn; child i is STREAMS[i]."""
+    assert STREAMS == ("phase", "noise", "body", "gyro", "plan", "flight_phase")
+    for seed in (0, 1, 17, 2**40):
+        children = np.random.SeedSequence(seed).spawn(len(STREAMS))
+        for name, child in zip(STREAMS, children):
+            assert np.array_equal(seed_stream(seed, name).generate_state(8), child.generate_state(8))
+            assert np.array_equal(streams(seed)[name].generate_state(8), child.generate_state(8))
+
+
+def test_streams_of_replicates_0_to_20_are_pairwise_distinct():
+    """Every (seed, name) pair of 21 replicates draws its own numbers: 126 streams, no two alike in
+    their first 4 words of state or their first draws. The old scheme's collision (replicate 2's
+    phase, ``default_rng([1, 2])``, was replicate 1's gyro, ``SeedSequence([1, 2])``) cannot recur."""
+    states, draws = {}, {}
+    for seed in range(21):
+        for name in STREAMS:
+            states[(seed, name)] = tuple(seed_stream(seed, name).generate_state(4).tolist())
+            draws[(seed, name)] = tuple(np.random.default_rng(seed_stream(seed, name)).uniform(size=4).tolist())
+    assert len(set(states.values())) == len(states) == 126
+    assert len(set(draws.values())) == len(draws) == 126
+    old_phase_2 = np.random.default_rng([1, 2]).uniform(size=4)
+    old_gyro_1 = np.random.default_rng(np.random.SeedSequence([1, 2])).uniform(size=4)
+    assert np.array_equal(old_phase_2, old_gyro_1)  # the collision the named streams replace
+    assert draws[(2, "phase")] != draws[(1, "gyro")]
+
+
+@pytest.mark.parametrize("seed, name, error", [(-1, "gyro", ValueError), (1.5, "gyro", ValueError),
+                                                ("3", "gyro", TypeError), (3, "wind", ValueError)])
+def test_a_bad_stream_request_names_what_is_allowed(seed, name, error):
+    with pytest.raises(error, match="seed|stream name"):
+        seed_stream(seed, name)
+
+
+def test_each_draw_of_a_run_comes_from_its_own_stream():
+    """The body's sway, the gyro and the manoeuvring plan of a config are those of its seed's named
+    streams (oracles: BodyMotion, GimbalMount's generator and ManoeuvringTarget built from the child
+    SeedSequence by hand), and another seed changes each of them."""
+    from gimbal_lab.trajectories import ManoeuvringTarget
+
+    seed = 5
+    child = dict(zip(STREAMS, np.random.SeedSequence(seed).spawn(len(STREAMS))))
+    config = TrackingConfig(platform=Platform(motion="vibration"), seed=seed)
+    t = np.linspace(0.0, 2.0, 201)
+    expected_body = BodyMotion(position_m=(0.0, 0.0, 2.0), sway=HoverSway(), vibration=config.platform.vibration,
+                               seed=child["body"])
+    np.testing.assert_array_equal(config.body.T_world_body(t), expected_body.T_world_body(t))
+    assert not np.allclose(config.replace(seed=6).body.T_world_body(t), expected_body.T_world_body(t))
+    from gimbal_lab.mount import GimbalMount
+
+    gimbal = Gimbal(gyro_noise_rad_s_rthz=1e-4)
+    mount = gimbal.mount(config.body, "stabilised", 50, seed)
+    by_hand = GimbalMount(gimbal.kinematics, config.body, "stabilised", gimbal.dt_s, 50, 1e-4,
+                          np.random.default_rng(child["gyro"]))
+    np.testing.assert_array_equal(mount._noise, by_hand._noise)  # the gyro's filtered white noise
+    assert not np.allclose(gimbal.mount(config.body, "stabilised", 50, 6)._noise, by_hand._noise)
+    plan = TrackingConfig(target=Target(trajectory="manoeuvring"), seed=seed).path
+    by_hand = ManoeuvringTarget(seed=child["plan"], duration_s=plan.duration_s)
+    np.testing.assert_array_equal(plan.position(t), by_hand.position(t))
+    other = TrackingConfig(target=Target(trajectory="manoeuvring"), seed=6).path
+    assert not np.allclose(other.position(t), plan.position(t))

@@ -6,7 +6,11 @@ times). Motions from docs/design.md, "Moving drone": a camera rigidly fixed to a
 vibrating body, the target on the study's circle, the waypoint flight; exposure 1/60 s, global
 shutter and a 20 ms rolling readout. All at the study's 640 × 480.
 
-Bounds (the issue's): mean absolute difference ≤ 2 grey levels per frame; detector outputs
+Bounds (the issue's): mean absolute difference ≤ 2 grey levels per frame, over the whole frame
+and over the target's region (a box of the reference's radius + 12 px about its centre: over the
+whole frame the blurred target is a few hundred of 307 200 pixels, and the sharp frame at the
+middle of the exposure met the bound there, 0.06–3.9 grey levels, so the bound applies where blur
+shows as well; there render_motion is within 0.35–1.03, the sharp frame 2.7–30); detector outputs
 within 0.2 px. The sphere detector's centre and radius are those of the minimum enclosing
 circle of the thresholded *pixel* contour, so one rim pixel crossing the threshold moves them
 by up to a pixel: on the circle at t = 0.8 s the reference itself moves by (−0.72, −1.02) px
@@ -113,12 +117,27 @@ def sphere_case(request, sphere_scene):
     return request.param, frames
 
 
+def target_box(reference):
+    """The target's region of a reference frame: its detected centre ± (radius + 12) px."""
+    (u, v, radius), _ = sphere_measures(reference)
+    half = int(radius) + 12
+    return np.s_[max(0, int(v) - half) : int(v) + half, max(0, int(u) - half) : int(u) + half]
+
+
+def assert_grey_matches(name, frame, reference):
+    """Mean |grey| difference within GREY_BOUND over the whole frame and over the target's region."""
+    grey = np.abs(frame.astype(float) - reference).mean()
+    assert grey <= GREY_BOUND, f"{name}: mean |grey| {grey:.2f}"
+    box = target_box(reference)
+    grey = np.abs(frame[box].astype(float) - reference[box]).mean()
+    assert grey <= GREY_BOUND, f"{name}: mean |grey| {grey:.2f} around the target"
+
+
 def test_sphere_frames_match_the_reference(sphere_case):
     name, frames = sphere_case
     circle_diffs, rim_diffs = [], []
     for fast, reference, _ in frames:
-        grey = np.abs(fast.astype(float) - reference).mean()
-        assert grey <= GREY_BOUND, f"{name}: mean |grey| {grey:.2f}"
+        assert_grey_matches(name, fast, reference)
         (circle_fast, rim_fast), (circle_ref, rim_ref) = sphere_measures(fast), sphere_measures(reference)
         circle_diffs.append(circle_fast - circle_ref)
         rim_diffs.append(rim_fast - rim_ref)
@@ -126,6 +145,16 @@ def test_sphere_frames_match_the_reference(sphere_case):
     assert np.abs(circle_diffs).max() <= ENCLOSING_CIRCLE_FRAME_BOUND_PX, (name, circle_diffs)
     assert np.abs(rim_diffs).max() <= RIM_FIT_FRAME_BOUND_PX, (name, rim_diffs)
     assert np.abs(rim_diffs.mean(axis=0)).max() <= DETECTOR_BOUND_PX, (name, rim_diffs)
+
+
+def test_the_grey_bound_refuses_an_unblurred_frame(sphere_case):
+    """The grey-level comparison given the sharp frame at the middle of the exposure (no blur)
+    instead of render_motion's fails on every frame of every case: the reference's blur is what
+    it checks."""
+    name, frames = sphere_case
+    for _, reference, sharp in frames:
+        with pytest.raises(AssertionError, match=r"mean \|grey\|"):
+            assert_grey_matches(name, sharp, reference)
 
 
 def test_the_bounds_have_teeth(sphere_case):

@@ -286,7 +286,7 @@ def test_markdown_gives_counts_reasons_and_detection_rates():
     assert "| H1 | 23 | 1 | 0 |" in text
     assert "the opposite is measured: stabilised exceeds fixed by 50.00 mm" in text
     assert "| sphere | hover | global | 0.25 | 0.25 | 0.25 |" in text
-    assert text.count("| **holds** |") == 63
+    assert text.count("| **holds** |") == 2 * 63  # each at 95 % and in the family (Holm)
 
 
 def test_report_writes_tables_verdicts_figures_and_metadata(tmp_path):
@@ -296,15 +296,133 @@ def test_report_writes_tables_verdicts_figures_and_metadata(tmp_path):
     from gimbal_lab.runner import run
 
     study = md.MovingDroneStudy(replicates=2, fps=10.0, period_s=0.6)
-    results = run(md.grid(study, targets=("sphere",), motions=("vibration",)), jobs=1, progress=False)
+    configs = md.grid(study, targets=("sphere",), motions=("vibration",))
+    configs += md.arm_grid(study, targets=("sphere",), motions=("vibration",))
+    results = run(configs, jobs=1, progress=False)
     written = md.write_report(tmp_path, results, study)
     names = sorted(p.relative_to(tmp_path).as_posix() for p in written)
     for name in ("summary.csv", "replicates.parquet", "replicates.csv", "verdicts.csv", "claims.md", "study.json",
+                 "pipelines.csv", "gains.csv", "gain_summary.csv", "figures/gains.png",
                  "figures/mount_bars.png", "figures/example_frames_sphere.svg", "figures/hypotheses_forest.png"):
         assert name in names and (tmp_path / name).stat().st_size > 0
     meta = json.loads((tmp_path / "study.json").read_text())
-    assert meta["study"] == "moving-drone" and meta["runs"] == 12 and meta["parameters"] == study.to_dict()
+    assert meta["study"] == "moving-drone" and meta["runs"] == 20 and meta["parameters"] == study.to_dict()
     verdicts = pd.read_csv(tmp_path / "verdicts.csv")
-    assert list(verdicts["id"].value_counts().sort_index()) == [4, 4, 2]  # H1, H3, H4 (no flight: no H2)
-    assert len(pd.read_parquet(tmp_path / "replicates.parquet")) == 12
+    # BP1, BP2 per shutter; D1, D2; H1, H3, H4 (no flight: no H2)
+    assert verdicts["id"].value_counts().sort_index().to_dict() == {"BP1": 2, "BP2": 2, "D1": 1, "D2": 1, "H1": 4,
+                                                                    "H3": 4, "H4": 2}
+    assert {"p_value", "p_holm", "verdict_holm"} <= set(verdicts.columns)
+    replicates = pd.read_parquet(tmp_path / "replicates.parquet")
+    assert len(replicates) == 20 and replicates["arm"].value_counts().to_dict() == {"full": 12, "sharp": 4, "static": 4}
+    assert len(pd.read_csv(tmp_path / "summary.csv")) == 6  # the study's cells only
+    assert set(pd.read_csv(tmp_path / "gains.csv")["gain"]) == {"G_full", "G_sharp", "G_static"}
     assert "# Moving drone: hypotheses H1–H4, measured" in (tmp_path / "claims.md").read_text()
+
+
+# ----------------------------------------------------------------------------------------------
+# the strongest passive baseline and the gain, decomposed
+# ----------------------------------------------------------------------------------------------
+def test_arm_grid_shares_the_study_draws_and_changes_only_exposure_or_target_path():
+    study = md.MovingDroneStudy(replicates=3)
+    arms = md.arm_grid(study)
+    assert len(arms) == 2 * 2 * 3 * 2 * 3 and len(set(arms)) == len(arms)
+    full = {(c.target.kind, c.platform.motion, c.pointing.mount, c.seed): c for c in md.grid(study)
+            if c.camera.readout_s == 0}
+    for c in arms:
+        twin = full[(c.target.kind, c.platform.motion, c.pointing.mount, c.seed)]
+        assert c.pointing.mount in ("stabilised", "active") and c.camera.readout_s == 0
+        if md.arm_of(c) == "sharp":
+            assert c.camera.exposure_s == 0 and c.replace(camera=twin.camera) == twin
+        else:
+            assert md.arm_of(c) == "static" and c.target.trajectory == "stationary"
+            assert c.camera.exposure_s == study.exposure_s and c.replace(target=twin.target) == twin
+    assert {md.arm_of(c) for c in md.grid(study)} == {"full"}
+    with pytest.raises(ValueError, match="arm"):
+        study.config("sphere", "hover", "active", "global", 0, arm="blurred")
+
+
+def exact_run(mount, detected, errors, alt_detected, alt_errors, seed=0, arm="full", motion="hover"):
+    """fake_run with the sphere's exact fit in alt_* (the acquisition revolution: 1 m everywhere)."""
+    study = md.MovingDroneStudy(replicates=2, fps=3.0, period_s=2.0)
+    r = fake_run(mount, np.asarray(detected, bool), np.asarray(errors, float), np.ones(6), seed=seed, motion=motion)
+    config = study.config("sphere", motion, mount, "global", seed, arm=arm)
+    f = r.frames.copy()
+    f["alt_detected"] = np.r_[np.ones(6, bool), np.asarray(alt_detected, bool)]
+    f["alt_abs_error_m"] = np.r_[np.ones(6), np.asarray(alt_errors, float)]
+    return TrackingResult(config=config, frames=f)
+
+
+def test_pipeline_and_gain_columns_on_hand_built_runs():
+    e = np.array([0.01, 0.02, 0.03, 0.04, 0.05, 0.06])
+    runs = [exact_run("fixed", [1] * 6, 10 * e, [1] * 6, 10 * e),
+            exact_run("stabilised", [1] * 6, 2 * e, [1, 1, 1, 1, 0, 1], e),
+            exact_run("active", [1, 1, 1, 0, 1, 1], 3 * e, [1, 1, 1, 1, 1, 0], 0.5 * e)]
+    table = md.replicate_table(runs).set_index("mount")
+    # gain frames: stabilised's and active's exact fits both detected: 0, 1, 2, 3
+    assert table.loc["stabilised", "pair_abs_error_m"] == pytest.approx(0.025, rel=1e-12)
+    assert table.loc["active", "pair_abs_error_m"] == pytest.approx(0.0125, rel=1e-12)
+    # BP frames: those and the active mount's own detections: 0, 1, 2
+    assert table.loc["active", "bp_rate"] == pytest.approx(0.5, rel=1e-12)
+    assert table.loc["active", "bp_paper_abs_error_m"] == pytest.approx(0.06, rel=1e-12)
+    assert table.loc["active", "bp_best_abs_error_m"] == pytest.approx(0.01, rel=1e-12)
+    assert table.loc["stabilised", "bp_best_abs_error_m"] == pytest.approx(0.02, rel=1e-12)
+    pipes = md.pipeline_table(table.reset_index()).set_index("pipeline")["abs_error_m"]
+    assert pipes.to_dict() == pytest.approx({"active (paper)": 0.06, "active (best)": 0.01, "best passive": 0.02})
+    gains = md.gain_table(table.reset_index())
+    assert len(gains) == 1 and gains.iloc[0]["G_m"] == pytest.approx(0.0125, rel=1e-12)
+    # the acquisition revolution (1 m, all detected) never counts
+    columns = ["pair_abs_error_m", "bp_paper_abs_error_m", "bp_best_abs_error_m"]
+    assert (table.loc[["stabilised", "active"], columns] < 0.1).all().all()
+
+
+def designed_arm_replicates(g_full=0.030, g_sharp=0.010, g_static=0.005):
+    """Replicates of every cell (designed_errors) plus the arms, with per-arm gains G on the
+    exact estimator's pair errors (stabilised − active) and BP columns."""
+    df = make_replicates(designed_errors())
+    df["arm"] = "full"
+    gains = {"full": g_full, "sharp": g_sharp, "static": g_static}
+    df["pair_abs_error_m"] = np.where(df["mount"] == "stabilised", 0.002 + g_full, 0.002) + np.tile(JITTER, len(df) // 6)
+    df["bp_paper_abs_error_m"] = np.where(df["mount"] == "active", 0.050, np.nan)
+    df["bp_best_abs_error_m"] = np.where(df["mount"] == "active", 0.004, 0.020)
+    df["bp_rate"] = 0.9
+    rows = []
+    for arm in ("sharp", "static"):
+        for target, motion, mount in itertools.product(md.TARGETS, md.MOTIONS, ("stabilised", "active")):
+            for seed in SEEDS:
+                rows.append(dict(arm=arm, target=target, motion=motion, mount=mount, shutter="global", seed=seed,
+                                 pair_abs_error_m=(0.002 + gains[arm] if mount == "stabilised" else 0.002)
+                                 + 0.5 * JITTER[seed]))
+    return pd.concat([df, pd.DataFrame(rows)], ignore_index=True)
+
+
+def test_bp_and_decomposition_claims_on_designed_replicates():
+    v = md.check_hypotheses(designed_arm_replicates())
+    counts = v["id"].value_counts().to_dict()
+    assert counts == {"H1": 24, "H2": 4, "H3": 24, "H4": 12, "BP1": 12, "BP2": 12, "D1": 6, "D2": 6}
+    by = {cid: v[v["id"] == cid] for cid in ("BP1", "BP2", "D1", "D2")}
+    # the paper's loop (50 mm) loses to the best passive pipeline (20 mm); the best active (4 mm) wins
+    assert (by["BP1"]["verdict"] == stats.DOES_NOT_HOLD).all() and (by["BP2"]["verdict"] == stats.HOLDS).all()
+    assert by["BP2"]["difference"].to_numpy() == pytest.approx(-0.016)
+    # G_sharp 10 mm and G_static 5 mm below G_full 30 mm
+    assert (by["D1"]["verdict"] == stats.HOLDS).all() and (by["D2"]["verdict"] == stats.HOLDS).all()
+    assert by["D1"]["difference"].to_numpy() == pytest.approx(-0.020, abs=1e-9)
+    assert (v["verdict_holm"] == v["verdict"]).all()  # wide effects stay decisive in a family of 100
+    # when the sharp arm's gain exceeds the full one, D1 does not hold; D2 is untouched
+    v = md.check_hypotheses(designed_arm_replicates(g_sharp=0.050))
+    assert (v[v["id"] == "D1"]["verdict"] == stats.DOES_NOT_HOLD).all()
+    assert (v[v["id"] == "D2"]["verdict"] == stats.HOLDS).all()
+    shares = md.gain_summary(md.gain_table(designed_arm_replicates()))
+    got = shares[(shares.target == "sphere") & (shares.motion == "hover")].set_index("gain")["mean_m"]
+    assert got.to_dict() == pytest.approx({"G_full": 0.030, "G_sharp": 0.010, "G_static": 0.005,
+                                           "G_full − G_sharp": 0.020}, abs=1e-9)
+
+
+def test_verdict_lines_render_p_and_holm_when_present():
+    v = md.check_hypotheses(designed_arm_replicates())
+    lines = _params.verdict_lines(v, md.verdict_reason)
+    head = lines[0]
+    assert "| p |" in head and head.endswith("| verdict | p (Holm) | verdict (Holm) |")
+    assert any(line.startswith("Of 100 conditions, at 95 % each:") and "At the family level (Holm" in line
+               for line in lines)
+    plain = _params.verdict_lines(v.drop(columns=["p_holm", "verdict_holm"]), md.verdict_reason)
+    assert plain[0].endswith("| p | verdict |") and "family level" not in "\n".join(plain)

@@ -48,3 +48,23 @@ def test_marker_faces_home_camera():
 def test_invalid_trajectories(kwargs, field):
     with pytest.raises(ValueError, match=field):
         Trajectory(**kwargs)
+
+
+def test_stationary_target_stays_at_the_circle_centre_on_the_home_axis():
+    still = Trajectory.stationary()
+    t = np.linspace(0.0, 5.0, 11)
+    assert np.array_equal(still.position(t), np.tile([3.0, 0.0, 2.0], (11, 1)))
+    assert np.array_equal(still.velocity(t), np.zeros((11, 3)))
+    assert np.array_equal(still.position(0.7), np.array([3.0, 0.0, 2.0]))
+    assert still.centre_m == Trajectory.circular().centre_m  # the circle's centre
+    # on the home optical axis: straight ahead of the home camera at (0, 0, 2) m
+    assert np.array_equal(target_pose(still, 1.3)[:3, 3] - np.array([0.0, 0.0, 2.0]), np.array([3.0, 0.0, 0.0]))
+
+
+def test_the_target_part_builds_the_stationary_path():
+    from gimbal_lab.config import Target
+
+    path = Target(trajectory="stationary").path(seed=0, duration_s=4.0, home_camera_m=np.zeros(3), field_rad=1.0)
+    assert path == Trajectory.stationary()
+    with pytest.raises(ValueError, match="target.trajectory"):
+        Target(trajectory="still")

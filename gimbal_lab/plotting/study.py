@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import matplotlib.pyplot as plt
+import matplotlib.ticker
 import numpy as np
 
 from ._common import interactive
@@ -13,13 +14,19 @@ from ..trajectories import Trajectory
 
 __all__ = ["plot_trajectories", "plot_error_bars", "plot_xyz", "plot_pixel_offset", "plot_forest", "plot_run_frame",
            "run_explorer", "plot_mount_bars", "plot_mount_frames", "plot_body_motions", "plot_lens_sweep",
-           "plot_lens_costs", "plot_lens_views", "plot_lens_radii", "plot_lens_error_cost", "plot_lens_h2_limits"]
+           "plot_lens_costs", "plot_lens_views", "plot_lens_radii", "plot_lens_error_cost", "plot_lens_h2_limits",
+           "plot_pipeline_costs", "plot_gains"]
 
 _MODE_COLOURS = {"passive": "tab:blue", "active": "tab:orange"}
 _VERDICT_COLOURS = {"holds": "tab:green", "does not hold": "tab:red", "inconclusive": "0.45"}
 _MOUNT_COLOURS = {"fixed": "tab:gray", "stabilised": "tab:blue", "active": "tab:orange"}
 _STRATEGY_COLOURS = {"ignore": "tab:gray", "undistort": "tab:green", "rectify": "tab:purple"}
 _TARGET_TITLES = {"sphere": "sphere", "aruco": "ArUco marker"}
+_PIPELINE_COLOURS = {"active (paper)": "tab:orange", "active (best)": "tab:red", "best passive": "tab:blue"}
+_CONDITION_MARKERS = {("undistorted", "circular"): "o", ("undistorted", "diagonal"): "s",
+                      ("distorted", "circular"): "^", ("distorted", "diagonal"): "D"}
+_GAIN_COLOURS = {"G_full": "tab:purple", "G_sharp": "tab:green", "G_static": "tab:gray"}
+_CLAIM_SIGN = {"equivalent": "≈", "non-inferior": "≤"}
 
 
 def plot_trajectories(period_s: float = 2.0, camera_m=(0.0, 0.0, 2.0), ax=None):
@@ -159,7 +166,10 @@ def plot_forest(verdicts, ax=None):
     Every row is one checked condition; the shaded band is ±δ (the smallest effect of interest,
     or the equivalence margin for "≈" claims, or the non-inferiority margin for "≤" claims), so a
     claim "a < b" holds where the interval lies left of 0 and its point left of −1, and "a ≤ b"
-    (at least as good) where the interval (90 %: one-sided 95 % bounds) ends left of +1. Colours give the verdict; the right margin prints the
+    (at least as good) where the interval (90 %: one-sided 95 % bounds) ends left of +1. Colours
+    give the verdict at 95 %; where the table has the family-level verdict (``verdict_holm``,
+    :func:`gimbal_lab.stats.holm`) and it differs, the point is hollow (decisive alone,
+    inconclusive in the family). The right margin prints the
     difference and interval in mm, or in the row's ``unit`` when the table has that column
     ("m", printed in mm, or "px"). A row without an interval (too few replicates) shows its point.
     """
@@ -175,13 +185,16 @@ def plot_forest(verdicts, ax=None):
     high = verdicts["high"].to_numpy() / scale
     ax.axvspan(-1, 1, color="0.9", zorder=0, label="±δ")
     ax.axvline(0, color="k", lw=0.8)
+    changed = (verdicts["verdict_holm"] != verdicts["verdict"]).to_numpy() if "verdict_holm" in verdicts \
+        else np.zeros(n, bool)
     for verdict, colour in _VERDICT_COLOURS.items():
-        sel = verdicts["verdict"].to_numpy() == verdict
-        if sel.any():
-            ax.errorbar(point[sel], y[sel], xerr=np.vstack((point[sel] - low[sel], high[sel] - point[sel])),
-                        fmt="o", color=colour, ms=4, capsize=2, label=verdict)
-    relation = {"equivalent": "≈", "non-inferior": "≤"}  # "≤": at least as good (non-inferiority)
-    labels = [f"{r.id} {r.condition}: {r.a} {relation.get(r.kind, '<')} {r.b}" for r in verdicts.itertuples()]
+        for hollow in (False, True):
+            sel = (verdicts["verdict"].to_numpy() == verdict) & (changed == hollow)
+            if sel.any():
+                ax.errorbar(point[sel], y[sel], xerr=np.vstack((point[sel] - low[sel], high[sel] - point[sel])),
+                            fmt="o", color=colour, ms=4, capsize=2, mfc="white" if hollow else colour,
+                            label=f"{verdict}, inconclusive after Holm" if hollow else verdict)
+    labels = [f"{r.id} {r.condition}: {r.a} {_CLAIM_SIGN.get(r.kind, '<')} {r.b}" for r in verdicts.itertuples()]
     ax.set_yticks(y, labels, fontsize=7)
     ax.set_xscale("symlog", linthresh=2.0)
     reach = float(np.nanmax(np.abs(np.concatenate((low, high, [2.0])))))
@@ -200,8 +213,109 @@ def plot_forest(verdicts, ax=None):
         ax.annotate(text, (1.01, yi), xycoords=("axes fraction", "data"), fontsize=6.5, va="center")
     ax.set_ylim(-0.7, n - 0.3)
     ax.grid(axis="x", alpha=0.3)
-    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, frameon=False, fontsize=8)
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, frameon=False, fontsize=8)
     return ax
+
+
+def plot_pipeline_costs(summary, fig=None):
+    """Each pipeline's distance error against its CPU cost per frame, one panel per target.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        :func:`gimbal_lab.studies.paper.pipeline_summary` with costs: per target, distortion,
+        trajectory and pipeline, ``common_abs_error_m`` with ``ci_low_m`` and ``ci_high_m`` (the
+        frames all pipelines detected) and ``cost_ms``.
+
+    Returns
+    -------
+    Figure
+        x: detection and localisation, ms of CPU per frame; y: error in mm on a log axis (95 %
+        interval of the mean over replicates). Colour: the pipeline; marker: the camera and path.
+        "active (best)" and "best passive" run the same estimator, so they share their x.
+    """
+    if summary.empty:
+        raise ValueError("summary holds no rows")
+    targets = list(dict.fromkeys(summary["target"]))
+    if fig is None:
+        fig = plt.figure(figsize=(5.0 * len(targets) + 2.4, 4.2), layout="constrained")
+    axes = fig.subplots(1, len(targets), squeeze=False)[0]
+    for ax, target in zip(axes, targets):
+        df = summary[summary["target"] == target]
+        for row in df.itertuples():
+            y = 1000.0 * row.common_abs_error_m
+            low, high = 1000.0 * row.ci_low_m, 1000.0 * row.ci_high_m
+            yerr = None
+            if np.isfinite(low) and np.isfinite(high):
+                yerr = [[min(y - low, 0.95 * y)], [high - y]]  # the log axis stays positive
+            ax.errorbar(row.cost_ms, y, yerr=yerr, fmt=_CONDITION_MARKERS.get((row.distortion, row.trajectory), "o"),
+                        color=_PIPELINE_COLOURS.get(row.pipeline, "k"), ms=6, capsize=2, mec="k", mew=0.4)
+        ax.set_yscale("log")
+        for axis in (ax.yaxis.set_major_formatter, ax.yaxis.set_minor_formatter):  # plain millimetres, not 1.2×10¹
+            axis(matplotlib.ticker.FormatStrFormatter("%g"))
+        ax.set_xlim(0, 1.15 * float(np.nanmax(df["cost_ms"])))
+        ax.set_xlabel("detection + localisation [ms CPU per frame]")
+        ax.set_ylabel("|d_est − d_true| [mm], frames all detected")
+        ax.set_title(_TARGET_TITLES.get(target, target))
+        ax.grid(alpha=0.3, which="both")
+    handles = [plt.Line2D([], [], color=c, marker="o", ls="", label=p) for p, c in _PIPELINE_COLOURS.items()]
+    handles += [plt.Line2D([], [], color="0.4", marker=m, ls="", label=f"{d}, {t}")
+                for (d, t), m in _CONDITION_MARKERS.items()]
+    axes[-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=8)
+    return fig
+
+
+def plot_gains(summary, fig=None):
+    """The moving drone's gain of the active over the stabilised camera, decomposed, per motion.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        :func:`gimbal_lab.studies.moving_drone.gain_summary`: per target, motion and gain
+        (``G_full``, ``G_sharp``, ``G_static``) the mean over replicates (``mean_m``) and its 95 %
+        interval (``low_m``, ``high_m``).
+
+    Returns
+    -------
+    Figure
+        One panel per target: bars of the three gains (mm) per motion with their intervals; a
+        gain without an interval (fewer than two replicates with frames both mounts detected)
+        is drawn without whiskers, one without any value is marked ×.
+    """
+    if summary.empty:
+        raise ValueError("summary holds no rows")
+    targets = list(dict.fromkeys(summary["target"]))
+    motions = list(dict.fromkeys(summary["motion"]))
+    gains = [g for g in _GAIN_COLOURS if (summary["gain"] == g).any()]
+    if fig is None:
+        fig = plt.figure(figsize=(4.6 * len(targets) + 2.0, 3.9), layout="constrained")
+    axes = fig.subplots(1, len(targets), squeeze=False)[0]
+    x = np.arange(len(motions))
+    width = 0.8 / max(len(gains), 1)
+    labels = {"G_full": "G_full: the study's runs", "G_sharp": "G_sharp: no exposure blur",
+              "G_static": "G_static: target still (body sway alone)"}
+    for ax, target in zip(axes, targets):
+        df = summary[summary["target"] == target]
+        for j, gain in enumerate(gains):
+            rows = [df[(df["motion"] == m) & (df["gain"] == gain)] for m in motions]
+            pick = lambda r, c: 1000.0 * float(r[c].iloc[0]) if len(r) else np.nan  # noqa: E731
+            mean = np.array([pick(r, "mean_m") for r in rows])
+            low = np.array([pick(r, "low_m") for r in rows])
+            high = np.array([pick(r, "high_m") for r in rows])
+            yerr = np.where(np.isfinite(np.vstack((mean - low, high - mean))), np.vstack((mean - low, high - mean)), 0.0)
+            offsets = x + (j - (len(gains) - 1) / 2) * width
+            ax.bar(offsets, np.nan_to_num(mean), width, yerr=yerr, capsize=2, color=_GAIN_COLOURS[gain],
+                   edgecolor="k", linewidth=0.4, label=labels[gain])
+            missing = ~np.isfinite(mean)
+            if missing.any():
+                ax.plot(offsets[missing], np.zeros(missing.sum()), "x", color="k", ms=6)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(x, motions)
+        ax.set_ylabel("stabilised − active error [mm]\nexact estimator, frames both detected")
+        ax.set_title(_TARGET_TITLES.get(target, target))
+        ax.grid(axis="y", alpha=0.3)
+    axes[-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=8)
+    return fig
 
 
 def plot_run_frame(passive, active, frame: int, renderer=None, fig=None):

@@ -2,7 +2,9 @@
 
 A study module defines ``NAME``, ``DESCRIPTION``, its parameters dataclass as ``Study`` (with
 ``from_toml``, ``replicates`` and ``revolutions``), ``grid(params)`` and
-``run_study(params, out, store, executor, jobs, progress, clips)``, used by ``gimbal-lab run NAME``.
+``run_study(params, out, store, executor, jobs, progress, clips)``, used by ``gimbal-lab run NAME``;
+a study that runs more than its grid (the paper's known-lens pipelines, the moving drone's arms)
+also defines ``all_configs(params)``, every run it makes, which the command counts.
 A scenario file (``gimbal-lab run FILE.toml``) is run by :mod:`gimbal_lab.studies.scenario`, a
 study module whose ``Study`` is the file.
 """

@@ -10,7 +10,8 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 __all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files",
-           "write_study_report"]
+           "write_study_report", "md_cell", "format_p", "verdict_counts", "verdict_lines", "cpu_seconds_per_frame", "run_frames",
+           "COST_REPEATS"]
 
 #: Environment variable that sets the extension studies' replicate count in their notebooks.
 REPLICATES_ENV = "GIMBAL_LAB_REPLICATES"
@@ -217,23 +218,67 @@ def verdict_rule(delta: str, more: str = "") -> str:
     return f"{rule} {more}" if more else rule
 
 
+def md_cell(value) -> str:
+    """``value`` as the text of one Markdown table cell: a ``|`` inside it escaped (``\\|``), so
+    that it does not end the cell (``|gap|`` would otherwise add two cells to its row)."""
+    return str(value).replace("|", "\\|")
+
+
+def format_p(p) -> str:
+    """A p-value as printed: three significant digits, "–" for a verdict without a test."""
+    return f"{float(p):.3g}" if p is not None and math.isfinite(float(p)) else "–"
+
+
+def verdict_counts(verdicts) -> str:
+    """The sentence counting the verdicts at both levels: as computed (95 %) and, when the table
+    has ``verdict_holm``, held to the family's 5 % error rate (Holm)."""
+    from .. import stats
+
+    n = len(verdicts)
+
+    def count(column):
+        c = verdicts[column].value_counts()
+        return ", ".join(f"{c.get(v, 0)} {v}" for v in stats.VERDICTS)
+
+    text = f"Of {n} conditions, at 95 % each: {count('verdict')}."
+    if "verdict_holm" in verdicts:
+        text += (f" At the family level (Holm's step-down over these {n} verdicts, 5 % family-wise error): "
+                 f"{count('verdict_holm')}.")
+    return text
+
+
 def verdict_lines(verdicts, reason, unit_in_list: bool = False) -> list[str]:
     """claims.md's verdict table, the count per hypothesis and the list of conditions that do not
     hold or are inconclusive, each with ``reason(row)`` (the unit beside the condition when
-    ``unit_in_list``)."""
+    ``unit_in_list``).
+
+    The table gives each verdict's ``p_value`` when the table has one, and beside it the
+    Holm-adjusted ``p_holm`` and the family-level ``verdict_holm`` when present
+    (:func:`gimbal_lab.stats.holm`); the counts are given at both levels. Every text cell is
+    escaped with :func:`md_cell`.
+    """
     from .. import stats
 
-    lines = ["| id | claim | condition | a | b | n | mean a | mean b | a − b [95 % CI] | δ | unit | verdict |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    has_p, has_holm = "p_value" in verdicts, {"p_holm", "verdict_holm"} <= set(verdicts.columns)
+    head = ["id", "claim", "condition", "a", "b", "n", "mean a", "mean b", "a − b [95 % CI]", "δ", "unit"]
+    head += ["p"] * has_p + ["verdict"] + ["p (Holm)", "verdict (Holm)"] * has_holm
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in verdicts.itertuples():
         f = lambda x: amount(x, row.unit)  # noqa: E731
-        lines.append(f"| {row.id} | {row.statement} | {row.condition} | {row.a} | {row.b} | {row.n} | {f(row.mean_a)} | "
-                     f"{f(row.mean_b)} | {f(row.difference)} [{f(row.low)}, {f(row.high)}] | {f(row.delta)} | "
-                     f"{unit_name(row.unit)} | **{row.verdict}** |")
-    lines += ["", "| hypothesis | " + " | ".join(stats.VERDICTS) + " |", "|---|---|---|---|"]
+        cells = [row.id, row.statement, row.condition, row.a, row.b, row.n, f(row.mean_a), f(row.mean_b),
+                 f"{f(row.difference)} [{f(row.low)}, {f(row.high)}]", f(row.delta), unit_name(row.unit)]
+        cells += [format_p(row.p_value)] * has_p + [f"**{row.verdict}**"]
+        if has_holm:
+            cells += [format_p(row.p_holm), f"**{row.verdict_holm}**"]
+        lines.append("| " + " | ".join(md_cell(c) for c in cells) + " |")
+    levels = [("verdict", "")] + [("verdict_holm", " (Holm)")] * has_holm
+    head = ["hypothesis"] + [f"{v}{suffix}" for _, suffix in levels for v in stats.VERDICTS]
+    lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for cid, g in verdicts.groupby("id", sort=False):
-        counts = g["verdict"].value_counts()
-        lines.append(f"| {cid} | " + " | ".join(str(counts.get(v, 0)) for v in stats.VERDICTS) + " |")
+        counts = [g[column].value_counts() for column, _ in levels]
+        lines.append(f"| {md_cell(cid)} | " + " | ".join(str(c.get(v, 0)) for c in counts for v in stats.VERDICTS)
+                     + " |")
+    lines += ["", verdict_counts(verdicts)]
     failing = verdicts[verdicts["verdict"] != stats.HOLDS]
     lines += ["", "## Conditions that do not hold or are inconclusive", ""]
     if failing.empty:
@@ -241,7 +286,77 @@ def verdict_lines(verdicts, reason, unit_in_list: bool = False) -> list[str]:
     for row in failing.itertuples():
         unit = f", {unit_name(row.unit)}" if unit_in_list else ""
         lines.append(f"- **{row.id}** ({row.condition}: {row.a} vs {row.b}{unit}), {row.verdict}: {reason(row)}.")
+    if has_holm:
+        lines += holm_change_lines(verdicts)
     return lines
+
+
+def holm_change_lines(verdicts) -> list[str]:
+    """The section listing every verdict that Holm's correction turns from decisive to inconclusive."""
+    changed = verdicts[verdicts["verdict"] != verdicts["verdict_holm"]]
+    lines = ["", "## Verdicts that do not survive the family's correction", ""]
+    if changed.empty:
+        return lines + ["Every decisive verdict stays decisive after Holm's correction."]
+    for row in changed.itertuples():
+        lines.append(f"- **{row.id}** ({row.condition}: {row.a} vs {row.b}): {row.verdict} at 95 % (p = "
+                     f"{format_p(row.p_value)}), {row.verdict_holm} in the family (Holm p = {format_p(row.p_holm)}).")
+    return lines
+
+
+# ----------------------------------------------------------------------------------------------
+# the cost of a pipeline (docs/design.md, "When does a gimbal pay off?": pipelines compared)
+# ----------------------------------------------------------------------------------------------
+#: Passes over the frames whose least CPU time is a pipeline's cost.
+COST_REPEATS = 5
+
+
+def run_frames(result, start: int = 0, stop: int | None = None, renderer=None) -> list:
+    """The noisy frames ``start:stop`` of a finished run, rendered again exactly as the run saw them
+    (:func:`gimbal_lab.show.replay`): the stored frames every pipeline's cost is measured on."""
+    from ..show import replay
+
+    return [image for _, image in replay(result, renderer=renderer, start=start, stop=stop)]
+
+
+def cpu_seconds_per_frame(estimate, images, repeats: int = COST_REPEATS) -> float:
+    """CPU time per frame of ``estimate(image)`` over ``images``, s: the least of ``repeats`` passes.
+
+    Each pass times the whole list with :func:`time.process_time` (CPU time of this process, not
+    the wall clock, so other processes sharing the machine do not count); the minimum over passes
+    is the cost least disturbed by what the process itself does besides (caches, the allocator).
+    OpenCV's thread pool is held to one thread while it runs, so a pipeline's cost is that of one
+    core, as in the runs' workers. Measured apart from the runs, never their wall time.
+
+    Parameters
+    ----------
+    estimate : callable
+        image → anything (an estimator of :meth:`gimbal_lab.config.Estimator.build`).
+    images : sequence of ndarray
+        The frames, the same for every pipeline compared.
+    repeats : int
+        Passes, >= 1 (5 by docs/design.md).
+    """
+    import time
+
+    import cv2
+
+    images = list(images)
+    if not images:
+        raise ValueError("images must hold at least one frame to time")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        best = math.inf
+        for _ in range(repeats):
+            t0 = time.process_time()
+            for image in images:
+                estimate(image)
+            best = min(best, time.process_time() - t0)
+    finally:
+        cv2.setNumThreads(threads)
+    return best / len(images)
 
 
 def run_and_report(name: str, desc: str, configs, write_report, study, out, *, store=None, executor=None, jobs=None,

@@ -119,7 +119,9 @@ def _run(args, parser) -> int:
                 executor = dask_executor(args.scheduler)
             except (ImportError, ValueError, OSError) as exc:
                 parser.error(f"--scheduler: {exc}")
-        n_runs = len(module.grid(params))
+        # every run the study makes: its grid and what it adds beside it (the paper's known-lens
+        # pipelines, the moving drone's arms), when it says so
+        n_runs = len(getattr(module, "all_configs", module.grid)(params))
         where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or default_jobs()} local processes"
         print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per cell, {params.revolutions:g} "
               f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)

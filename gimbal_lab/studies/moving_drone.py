@@ -20,12 +20,25 @@ every motion; **H2** active beats stabilised in flight; **H3** the target's blur
 for active, then stabilised, then fixed; **H4** the rolling shutter costs the fixed mount more
 than the others. Verdicts: :mod:`gimbal_lab.stats`, with δ's floor 1 mm for errors and
 :data:`STREAK_FLOOR_PX` for streaks.
+
+The strongest passive baseline and the gain decomposed (docs/design.md, "When does a gimbal pay
+off?"): **BP1** "active (paper) < best passive" and **BP2** "active (best) < best passive" per
+target × motion × shutter, where active (paper) is the active mount's circle method (sphere) or
+PnP on the sub-pixel corners, active (best) the active mount's exact estimator (the sphere's cone
+fit, recorded in every run's ``alt_*`` columns; the marker's PnP), best passive the stabilised
+mount's exact estimator, on the frames all three detected (:func:`pipeline_table`). Two arms
+beside the grid (:func:`arm_grid`), global shutter, stabilised and active mounts, the study's
+draws: **sharp** (exposure 0) and **static** (the target held still at the circle's centre,
+1/60 s exposure). With G = stabilised − active error (exact estimator, frames both mounts
+detected) per replicate (:func:`gain_table`): **D1** "G_sharp < G_full", **D2** "G_static <
+G_full", and the shares G_full − G_sharp, G_sharp, G_static with intervals
+(:func:`gain_summary`). Every verdict is also given at the family level: Holm's correction over
+the report's whole table (:func:`gimbal_lab.stats.holm`).
 """
 
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +48,7 @@ import pandas as pd
 from .. import stats
 from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
-from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number
+from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number, seed_stream
 from . import _params
 from ._params import StudyParams
 from .paper import replicate_phase_s
@@ -50,6 +63,14 @@ __all__ = [
     "STREAK_FLOOR_PX",
     "flight_phase_s",
     "grid",
+    "ARMS",
+    "arm_grid",
+    "all_configs",
+    "arm_of",
+    "PIPELINES",
+    "pipeline_table",
+    "gain_table",
+    "gain_summary",
     "replicate_table",
     "summary_table",
     "check_hypotheses",
@@ -67,12 +88,15 @@ MOTIONS = ("hover", "vibration", "flight")
 MOUNTS = ("fixed", "stabilised", "active")
 SHUTTERS = ("global", "rolling")
 
+#: The study's runs and the two arms of the gain's decomposition (docs/design.md, "The moving
+#: drone's gain, decomposed"): no exposure blur, and the target held still.
+ARMS = ("full", "sharp", "static")
+
+#: The pipelines compared by BP1 and BP2 (docs/design.md, "Pipelines compared").
+PIPELINES = ("active (paper)", "active (best)", "best passive")
+
 #: Absolute floor of δ for blur streaks: a difference under a pixel is no difference in blur.
 STREAK_FLOOR_PX = 1.0
-
-#: Stream index of a replicate's draw of the flight's start point (the paper study uses 1).
-_FLIGHT_STREAM = 3
-
 
 @dataclass(frozen=True)
 class MovingDroneStudy(StudyParams):
@@ -108,19 +132,23 @@ class MovingDroneStudy(StudyParams):
         for shutter in SHUTTERS:
             self.config("sphere", "flight", "active", shutter, self.first_seed)
 
-    def config(self, target: str, motion: str, mount: str, shutter: str, seed: int) -> TrackingConfig:
-        """The run of one cell and replicate."""
+    def config(self, target: str, motion: str, mount: str, shutter: str, seed: int, arm: str = "full"
+               ) -> TrackingConfig:
+        """The run of one cell and replicate; ``arm`` "sharp" sets the exposure to 0 (no blur),
+        "static" holds the target still at the circle's centre (trajectory "stationary")."""
         _choice("target", target, TARGETS)
         _choice("motion", motion, MOTIONS)
         _choice("mount", mount, MOUNTS)
         _choice("shutter", shutter, SHUTTERS)
+        _choice("arm", arm, ARMS)
         return TrackingConfig(
             camera=Camera(fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std,
-                          exposure_s=self.exposure_s, blur="fast",
+                          exposure_s=0.0 if arm == "sharp" else self.exposure_s, blur="fast",
                           readout_s=self.readout_s if shutter == "rolling" else 0.0),
             gimbal=Gimbal(gyro_noise_rad_s_rthz=math.radians(self.gyro_noise_deg_s_rthz)),
             platform=Platform(motion=motion, motion_phase_s=flight_phase_s(seed) if motion == "flight" else 0.0),
-            target=Target(kind=target, trajectory="circular", period_s=self.period_s,
+            target=Target(kind=target, trajectory="stationary" if arm == "static" else "circular",
+                          period_s=self.period_s,
                           start_phase_s=replicate_phase_s(seed, self.period_s)),
             pointing=Pointing(_POINTING[mount]), estimator=Estimator(aruco_refinement=self.aruco_refinement),
             revolutions=self.revolutions, seed=seed)
@@ -134,8 +162,9 @@ Study = MovingDroneStudy
 
 
 def flight_phase_s(seed: int) -> float:
-    """Where replicate ``seed`` starts on the flight's round trip: U(0, its period), from the seed alone."""
-    return float(np.random.default_rng([_FLIGHT_STREAM, int(seed)]).uniform(0.0, WaypointFlight().period_s))
+    """Where replicate ``seed`` starts on the flight's round trip: U(0, its period), from the seed's
+    "flight_phase" stream (:func:`gimbal_lab.config.seed_stream`)."""
+    return float(np.random.default_rng(seed_stream(seed, "flight_phase")).uniform(0.0, WaypointFlight().period_s))
 
 
 def grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOTIONS) -> list[TrackingConfig]:
@@ -146,6 +175,28 @@ def grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOTIONS
             for seed in study.seeds]
 
 
+def arm_grid(study: MovingDroneStudy | None = None, targets=TARGETS, motions=MOTIONS) -> list[TrackingConfig]:
+    """The runs of the two arms beside the grid: sharp and static, each target and motion, the
+    stabilised and active mounts, global shutter, the study's replicates (same seeds, so the
+    same draws); 2 × 2 × 3 × 2 cells × replicates for both targets and every motion."""
+    study = study or MovingDroneStudy()
+    return [study.config(target, motion, mount, "global", seed, arm=arm)
+            for arm in ARMS[1:] for target in targets for motion in motions for mount in ("stabilised", "active")
+            for seed in study.seeds]
+
+
+def all_configs(study: MovingDroneStudy | None = None) -> list[TrackingConfig]:
+    """Every run of the study: the grid and the two arms of the gain's decomposition."""
+    return grid(study) + arm_grid(study)
+
+
+def arm_of(config: TrackingConfig) -> str:
+    """Which arm a run belongs to: "static" (target still), "sharp" (no exposure) or "full"."""
+    if config.target.trajectory == "stationary":
+        return "static"
+    return "sharp" if config.camera.exposure_s == 0 else "full"
+
+
 # ----------------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------------
@@ -154,8 +205,21 @@ def _shutter(config: TrackingConfig) -> str:
 
 
 def _identity(config: TrackingConfig) -> dict:
-    return {"target": config.target.kind, "motion": config.platform.motion, "mount": config.pointing.mount,
-            "shutter": _shutter(config), "seed": config.seed}
+    return {"arm": arm_of(config), "target": config.target.kind, "motion": config.platform.motion,
+            "mount": config.pointing.mount, "shutter": _shutter(config), "seed": config.seed}
+
+
+def _exact(result) -> tuple[np.ndarray, np.ndarray] | None:
+    """(detected, |error|) of the run's exact estimator on its measured frames: the sphere's cone
+    fit (``alt_*`` beside the circle method) or the marker's own PnP; None when the run's frames
+    lack those columns."""
+    from .paper import _exact_prefix
+
+    prefix = _exact_prefix(result.config)
+    f = _measured(result)
+    if f"{prefix}detected" not in f or f"{prefix}abs_error_m" not in f:
+        return None
+    return f[f"{prefix}detected"].to_numpy(bool), f[f"{prefix}abs_error_m"].to_numpy(float)
 
 
 def _measured(result) -> pd.DataFrame:
@@ -185,7 +249,7 @@ def replicate_table(results) -> pd.DataFrame:
     groups: dict[tuple, list] = {}
     for r in results:
         c = r.config
-        groups.setdefault((c.target.kind, c.platform.motion, _shutter(c), c.seed), []).append(r)
+        groups.setdefault((arm_of(c), c.target.kind, c.platform.motion, _shutter(c), c.seed), []).append(r)
     rows = []
     for members in groups.values():
         measured = {id(r): _measured(r) for r in members}
@@ -193,6 +257,13 @@ def replicate_table(results) -> pd.DataFrame:
         if len(lengths) != 1:
             raise ValueError("runs of one target, motion, shutter and seed must have the same frames")
         common = np.logical_and.reduce([f["detected"].to_numpy() for f in measured.values()])
+        by_mount = {r.config.pointing.mount: r for r in members}
+        exact = {m: _exact(r) for m, r in by_mount.items()}
+        # the frames the gain compares: both the stabilised and the active mount's exact estimator detected
+        pair = (exact["stabilised"][0] & exact["active"][0]
+                if all(exact.get(m) is not None for m in ("stabilised", "active")) else None)
+        # BP's frames: the active mount's own and exact estimators and the stabilised mount's exact one
+        bp = (pair & measured[id(by_mount["active"])]["detected"].to_numpy(bool)) if pair is not None else None
         for r in members:
             c, f = r.config, measured[id(r)]
             detected = f["detected"].to_numpy()
@@ -209,13 +280,108 @@ def replicate_table(results) -> pd.DataFrame:
                 "mean_true_offset_px": _mean(f["true_offset_px"]),
                 "time_to_centre_s": (_time_to_centre(acquiring, CENTRED_FRACTION * c.camera.width)
                                      if c.pointing.active else math.nan),
+                **_pipeline_columns(f, exact.get(c.pointing.mount), pair, bp),
             })
-    order = {name: i for i, name in enumerate(TARGETS + MOTIONS + MOUNTS + SHUTTERS)}
+    order = {name: i for i, name in enumerate(ARMS + TARGETS + MOTIONS + MOUNTS + SHUTTERS)}
     table = pd.DataFrame(rows)
     if table.empty:
         return table
-    return table.sort_values(["target", "motion", "mount", "shutter", "seed"],
+    return table.sort_values(["arm", "target", "motion", "mount", "shutter", "seed"],
                              key=lambda s: s.map(order) if s.name != "seed" else s, ignore_index=True)
+
+
+def _pipeline_columns(f: pd.DataFrame, exact, pair, bp) -> dict:
+    """A run's errors on the frames the pipelines compare (NaN where they do not apply):
+    ``pair_abs_error_m`` (exact estimator, frames the stabilised and active mounts' exact
+    estimators both detected: the gain), ``bp_rate``, ``bp_paper_abs_error_m`` (own estimator)
+    and ``bp_best_abs_error_m`` (exact estimator) on BP's frames (:func:`pipeline_table`)."""
+    nan = dict(pair_rate=math.nan, pair_abs_error_m=math.nan, bp_rate=math.nan, bp_paper_abs_error_m=math.nan,
+               bp_best_abs_error_m=math.nan)
+    if exact is None or pair is None:
+        return nan
+    own = f["abs_error_m"].to_numpy(float)
+    return dict(pair_rate=_mean(pair), pair_abs_error_m=_mean(exact[1][pair]), bp_rate=_mean(bp),
+                bp_paper_abs_error_m=_mean(own[bp]), bp_best_abs_error_m=_mean(exact[1][bp]))
+
+
+def pipeline_table(replicates: pd.DataFrame) -> pd.DataFrame:
+    """The three pipelines per target, motion, shutter and replicate, from the study's runs.
+
+    active (paper): the active mount's own estimator (the paper's circle method or PnP on the
+    sub-pixel corners); active (best): the active mount's exact estimator (the sphere's cone fit
+    in its ``alt_*`` columns); best passive: the stabilised mount's exact estimator. All on the
+    measured frames where the three detected (``bp_*`` columns of :func:`replicate_table`).
+
+    Returns
+    -------
+    DataFrame
+        target, motion, shutter, pipeline, seed, rate (of those frames) and abs_error_m (m).
+    """
+    r = replicates[replicates["arm"] == "full"] if "arm" in replicates else replicates
+    rows = []
+    for (t, m, s, seed), g in r.groupby(["target", "motion", "shutter", "seed"], sort=False):
+        mounts = g.set_index("mount")
+        if not {"active", "stabilised"} <= set(mounts.index):
+            continue
+        values = {"active (paper)": mounts.loc["active", "bp_paper_abs_error_m"],
+                  "active (best)": mounts.loc["active", "bp_best_abs_error_m"],
+                  "best passive": mounts.loc["stabilised", "bp_best_abs_error_m"]}
+        for p in PIPELINES:
+            rows.append(dict(target=t, motion=m, shutter=s, pipeline=p, seed=seed,
+                             rate=float(mounts.loc["active", "bp_rate"]), abs_error_m=float(values[p])))
+    return pd.DataFrame(rows)
+
+
+def gain_table(replicates: pd.DataFrame) -> pd.DataFrame:
+    """G = stabilised − active error per arm, target, motion and replicate (global shutter; the
+    exact estimator on the frames both mounts detected, ``pair_abs_error_m``), m. NaN where a
+    replicate has no such frame.
+
+    Returns
+    -------
+    DataFrame
+        arm, target, motion, seed, gain (``G_full``, ``G_sharp``, ``G_static``), G_m.
+    """
+    if "arm" not in replicates:
+        return pd.DataFrame(columns=["arm", "target", "motion", "seed", "gain", "G_m"])
+    r = replicates[(replicates["shutter"] == "global") & replicates["mount"].isin(["stabilised", "active"])]
+    rows = []
+    for (arm, t, m, seed), g in r.groupby(["arm", "target", "motion", "seed"], sort=False):
+        e = g.set_index("mount")["pair_abs_error_m"]
+        if set(e.index) != {"stabilised", "active"}:
+            continue
+        rows.append(dict(arm=arm, target=t, motion=m, seed=seed, gain=f"G_{arm}",
+                         G_m=float(e["stabilised"] - e["active"])))
+    return pd.DataFrame(rows, columns=["arm", "target", "motion", "seed", "gain", "G_m"])
+
+
+def _gains_of(gains: pd.DataFrame, target, motion) -> dict[str, pd.Series]:
+    sel = gains[(gains["target"] == target) & (gains["motion"] == motion)]
+    return {arm: sel[sel["arm"] == arm].set_index("seed")["G_m"].sort_index() for arm in ARMS}
+
+
+def gain_summary(gains: pd.DataFrame) -> pd.DataFrame:
+    """The shares of the gain per target and motion, with 95 % t-intervals over replicates
+    (docs/design.md: no verdict on them): G_full, G_sharp, G_static, and the target's own blur
+    G_full − G_sharp (paired by replicate; a replicate lacking either leaves its pair out).
+
+    Returns
+    -------
+    DataFrame
+        target, motion, gain, n, mean_m, low_m, high_m.
+    """
+    rows = []
+    if gains.empty:
+        return pd.DataFrame(columns=["target", "motion", "gain", "n", "mean_m", "low_m", "high_m"])
+    for (t, m), _ in gains.groupby(["target", "motion"], sort=False):
+        g = _gains_of(gains, t, m)
+        series = {f"G_{arm}": g[arm].dropna() for arm in ARMS if len(g[arm])}
+        if "G_full" in series and "G_sharp" in series:
+            series["G_full − G_sharp"] = (g["full"] - g["sharp"]).dropna()
+        for name, values in series.items():
+            mean, low, high = stats.mean_interval(values.to_numpy()) if len(values) else (math.nan,) * 3
+            rows.append(dict(target=t, motion=m, gain=name, n=len(values), mean_m=mean, low_m=low, high_m=high))
+    return pd.DataFrame(rows)
 
 
 _CELL = ["target", "motion", "mount", "shutter"]
@@ -223,8 +389,11 @@ _CELL = ["target", "motion", "mount", "shutter"]
 
 def summary_table(replicates: pd.DataFrame) -> pd.DataFrame:
     """Per cell: replicates, the mean of each replicate quantity, and 95 % t-intervals of the
-    common-frame error (``ci_low_m``, ``ci_high_m``) and of the streak (``streak_ci_low_px``, ...)."""
+    common-frame error (``ci_low_m``, ``ci_high_m``) and of the streak (``streak_ci_low_px``, ...).
+    The study's own runs only (``arm`` "full"; the arms are summarised by :func:`gain_summary`)."""
     rows = []
+    if "arm" in replicates:
+        replicates = replicates[replicates["arm"] == "full"]
     for key, g in replicates.groupby(_CELL, sort=False):
         row = dict(zip(_CELL, key))
         mean, low, high = stats.mean_interval(g["common_abs_error_m"])
@@ -243,7 +412,7 @@ def summary_table(replicates: pd.DataFrame) -> pd.DataFrame:
 # hypotheses
 # ----------------------------------------------------------------------------------------------
 def _cell(replicates: pd.DataFrame, target, motion, mount, shutter, column) -> pd.Series:
-    r = replicates
+    r = replicates[replicates["arm"] == "full"] if "arm" in replicates else replicates
     sel = r[(r.target == target) & (r.motion == motion) & (r["mount"] == mount) & (r.shutter == shutter)]
     if sel.empty:
         raise ValueError(f"the replicate table has no rows for {target}/{motion}/{mount}/{shutter}")
@@ -253,18 +422,25 @@ def _cell(replicates: pd.DataFrame, target, motion, mount, shutter, column) -> p
 
 
 def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
-    """H1–H4 per condition, with three-way verdicts and the numbers behind them.
+    """H1–H4, BP1, BP2, D1 and D2 per condition, with three-way verdicts at 95 % and at the
+    family level, and the numbers behind them.
 
     Errors (H1, H2, H4) are the common-frame errors, metres; H4's quantity is the rolling
     shutter's cost, common-frame error with the rolling minus with the global shutter, per
     replicate. Streaks (H3) are pixels, with δ's floor :data:`STREAK_FLOOR_PX`. A replicate
     without common frames leaves its pair out; fewer than two pairs is "inconclusive".
+    H1–H4 use the study's own runs (``arm`` "full"). Where the table has the pipelines' columns
+    (:func:`replicate_table` of real runs), BP1 "active (paper) < best passive" and BP2 "active
+    (best) < best passive" per target × motion × shutter (:func:`pipeline_table`); where it has
+    the sharp or static arm, D1 "G_sharp < G_full" and D2 "G_static < G_full" per target × motion
+    (:func:`gain_table`). Errors in m.
 
     Returns
     -------
     DataFrame
-        One row per condition: id, statement, condition, a, b, unit ("m" or "px") and the
-        :class:`gimbal_lab.stats.Verdict` fields.
+        One row per condition: id, statement, condition, a, b, unit ("m" or "px"), the
+        :class:`gimbal_lab.stats.Verdict` fields and, from :func:`gimbal_lab.stats.holm` over the
+        whole table (one family, docs/design.md "Multiplicity"), p_holm and verdict_holm.
     """
     rows = []
     targets = [t for t in TARGETS if (replicates["target"] == t).any()]
@@ -305,7 +481,24 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
             for mount in ("stabilised", "active"):
                 add("H4", "the rolling shutter costs fixed more (error: rolling − global)", f"{t}, {m}",
                     f"cost {mount}", "cost fixed", cost[mount], cost["fixed"])
-    return stats.verdict_table(rows)
+    if "bp_paper_abs_error_m" in replicates:
+        pipes = pipeline_table(replicates)
+        for (t, m, s), g in (pipes.groupby(["target", "motion", "shutter"], sort=False) if len(pipes) else ()):
+            value = {p: g[g["pipeline"] == p].set_index("seed")["abs_error_m"].sort_index() for p in PIPELINES}
+            for cid, active in (("BP1", "active (paper)"), ("BP2", "active (best)")):
+                add(cid, f"{active} error < best passive error", f"{t}, {m}, {s}", active, "best passive",
+                    value[active], value["best passive"])
+    gains = gain_table(replicates)
+    for t in targets:
+        for m in motions:
+            g = _gains_of(gains, t, m)
+            if not len(g["full"]):
+                continue
+            for cid, arm, what in (("D1", "sharp", "removing the target's own blur lowers the gain"),
+                                   ("D2", "static", "the body's sway alone gives less gain than a moving target")):
+                if len(g[arm]):
+                    add(cid, f"{what} (G_{arm} < G_full)", f"{t}, {m}", f"G_{arm}", "G_full", g[arm], g["full"])
+    return stats.holm(stats.verdict_table(rows))
 
 
 def verdict_reason(row) -> str:
@@ -313,10 +506,19 @@ def verdict_reason(row) -> str:
     return _params.verdict_reason(row, "have frames where every mount detected the target")
 
 
+def _mm_interval(mean: float, low: float, high: float) -> str:
+    """"12.34 [10.00, 14.00]" in mm from metres; "–" for what is not defined (one replicate)."""
+    f = lambda x: f"{1000 * x:.2f}" if math.isfinite(x) else "–"  # noqa: E731
+    return f"{f(mean)} [{f(low)}, {f(high)}]"
+
+
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
-                        study: MovingDroneStudy | None = None) -> str:
-    """claims.md of the study: the setting, every condition's verdict with its interval and δ, a
-    per-hypothesis count and a measured reason for each condition that does not hold."""
+                        study: MovingDroneStudy | None = None, pipelines: pd.DataFrame | None = None,
+                        gains: pd.DataFrame | None = None) -> str:
+    """claims.md of the study: the setting, every condition's verdict with its interval, δ, p and
+    Holm p at both levels, a per-hypothesis count, a measured reason for each condition that
+    does not hold, and with ``pipelines`` (:func:`pipeline_table`) and ``gains``
+    (:func:`gain_summary`) each pipeline's error and the gain's shares with their intervals."""
     study = study or MovingDroneStudy()
     n = int(verdicts["n"].max()) if len(verdicts) else 0
     lines = [
@@ -329,6 +531,16 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         "is acquisition); cells are paired by replicate. Errors are over the frames where every mount detected "
         "the target.",
         "",
+        "The strongest passive baseline (docs/design.md, \u201cWhen does a gimbal pay off?\u201d): **active (paper)** "
+        "is the active mount with the paper's estimator (circle method; PnP on the sub-pixel corners), **active "
+        "(best)** the active mount with the exact estimator (the sphere's cone fit; the marker's PnP), **best "
+        "passive** the stabilised mount with the exact estimator; BP1 and BP2 compare them on the frames all three "
+        "detected. The gain G = stabilised − active error (exact estimator, frames both mounts detected) is "
+        "decomposed with two arms (global shutter, the same draws): **sharp** (exposure 0) and **static** (the "
+        "target held still at the circle's centre); D1 \u201cG_sharp < G_full\u201d, D2 \u201cG_static < "
+        "G_full\u201d. Every verdict is given at 95 % and after Holm's step-down correction over all the verdicts "
+        "below (5 % family-wise error).",
+        "",
         _params.verdict_rule(f"max(floor, 10 % of the smaller mean), floor 1 mm for errors and {STREAK_FLOOR_PX:g} px "
                              "for streaks", "A replicate without common detections drops out of its pair."),
         "",
@@ -340,6 +552,25 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         for (t, m, s), g in summary.groupby(["target", "motion", "shutter"], sort=False):
             rate = g.set_index("mount")["detection_rate"]
             lines.append(f"| {t} | {m} | {s} | " + " | ".join(f"{rate.get(x, math.nan):.2f}" for x in MOUNTS) + " |")
+    if pipelines is not None and len(pipelines):
+        lines += ["", "## Each pipeline's error (frames all three detected)", "",
+                  "Mean over replicates of each replicate's mean |d_est − d_true|, with its 95 % interval.", "",
+                  "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
+                  "|---|---|---|---|---|---|---|"]
+        for (t, m, s, p), g in pipelines.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
+            values = g["abs_error_m"].dropna().to_numpy()
+            mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
+            lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
+                         f"{g['rate'].mean():.2f} |")
+    if gains is not None and len(gains):
+        lines += ["", "## The gain, decomposed", "",
+                  "G = stabilised − active error, mm (exact estimator, frames both mounts detected, global shutter); "
+                  "mean over replicates and 95 % interval. The target's own blur: G_full − G_sharp; centring on a "
+                  "moving target without blur: G_sharp; sway alone: G_static. No verdict on the shares.", "",
+                  "| target | motion | share | n | G [mm] [95 % CI] |", "|---|---|---|---|---|"]
+        for row in gains.itertuples():
+            lines.append(f"| {row.target} | {row.motion} | {row.gain} | {row.n} | "
+                         f"{_mm_interval(row.mean_m, row.low_m, row.high_m)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -370,28 +601,56 @@ def example_runs(results, target: str, motion: str = EXAMPLE_MOTION, shutter: st
 def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     """Write the tables, hypotheses and figures into ``folder``; return the paths written.
 
-    Files: ``summary.csv``, ``replicates.parquet`` and ``.csv``, ``verdicts.csv``, ``claims.md``,
-    ``study.json`` and ``figures/`` (bars of error, detection rate and streak; the example frames
-    of each target; the forest plot of the hypotheses), PNG and SVG.
+    ``results``: the grid's runs and, when run, the arms' (:func:`arm_grid`). Files:
+    ``summary.csv``, ``replicates.parquet`` and ``.csv`` (every run, with its ``arm``),
+    ``pipelines.csv``, ``gains.csv`` (per replicate) and ``gain_summary.csv``, ``verdicts.csv``,
+    ``claims.md``, ``study.json`` and ``figures/`` (bars of error, detection rate and streak; the
+    example frames of each target; the three gains per motion and target when the arms ran; the
+    forest plot of the verdicts), PNG and SVG.
     """
     from .. import plotting
 
-    def figures(save, results, summary):
-        save(plotting.study.plot_mount_bars(summary), "mount_bars")
-        for target in sorted({r.config.target.kind for r in results}, key=TARGETS.index):
-            runs = example_runs(results, target)
-            frame = int(round(runs[0].config.frames_per_revolution * 1.25))
-            save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")
+    plt = _params.report_pyplot()
+    folder = Path(folder)
+    replicates = replicate_table(results)
+    summary = summary_table(replicates)
+    verdicts = check_hypotheses(replicates)
+    pipelines = pipeline_table(replicates)
+    gains = gain_table(replicates)
+    shares = gain_summary(gains)
+    written = _params.write_report_files(folder, (
+        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
+        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
+        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
+        ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
+        ("gains.csv", lambda p: gains.to_csv(p, index=False)),
+        ("gain_summary.csv", lambda p: shares.to_csv(p, index=False)),
+        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
+        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, shares))),
+    ), NAME, study, len(results))
 
-    return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
+    def save(fig, name):
+        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
+
+    full = [r for r in results if arm_of(r.config) == "full"]
+    save(plotting.study.plot_mount_bars(summary), "mount_bars")
+    for target in sorted({r.config.target.kind for r in full}, key=TARGETS.index):
+        runs = example_runs(full, target)
+        frame = int(round(runs[0].config.frames_per_revolution * 1.25))
+        save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")
+    if (shares["gain"] != "G_full").any() if len(shares) else False:
+        save(plotting.study.plot_gains(shares[shares["gain"].isin(["G_full", "G_sharp", "G_static"])]), "gains")
+    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
+    plt.close("all")
+    return written
 
 
 def run_study(study: MovingDroneStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid (reusing ``store``) and write the report to ``out/moving-drone`` atomically.
+    """Run the grid and the arms of the gain's decomposition (reusing ``store``) and write the report to ``out/moving-drone`` atomically.
 
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
     Returns a dict with the results, the folder and the paths written.
     """
-    return _params.run_and_report(NAME, "moving drone", grid(study), write_report, study, out, store=store,
-                                  executor=executor, jobs=jobs, progress=progress)
+    return _params.run_and_report(NAME, "moving drone", all_configs(study), write_report, study, out,
+                                  store=store, executor=executor, jobs=jobs, progress=progress)

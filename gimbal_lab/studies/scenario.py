@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..config import _PARTS, Camera, TrackingConfig, _number
+from ..config import _PARTS, Camera, TrackingConfig, _number, seed_stream
 from . import _params
 
 __all__ = ["Scenario", "Study", "NAME", "DESCRIPTION", "SCENARIO_DIR", "SHORTHANDS", "METRICS", "KINDS",
@@ -101,10 +101,6 @@ METRICS = {
 #: within a margin δ, "a ≈ b" within ±20 % of the two means' average.
 KINDS = {"less": "<", "non_inferior": "≤", "equivalent": "≈"}
 _HYPOTHESIS_KEYS = ("factor", "a", "b", "kind", "metric", "floor", "statement")
-
-#: Stream of a replicate's draw of the flight's start point (the moving-drone study's).
-_FLIGHT_STREAM = 3
-
 
 def _paper_camera() -> dict:
     return {"camera.calibration": None, "camera.hfov_rad": math.radians(60.0), "camera.width": 640,
@@ -501,7 +497,9 @@ def _replicate_draws(config: TrackingConfig, seed: int) -> dict:
     draws = {"target__start_phase_s": replicate_phase_s(seed, config.target.period_s)}
     if config.platform.motion == "flight":
         period = config.platform.flight.period_s
-        draws["platform__motion_phase_s"] = float(np.random.default_rng([_FLIGHT_STREAM, int(seed)]).uniform(0, period))
+        # the replicate's named "flight_phase" stream, as the moving-drone study's (docs/design.md, "Repairs")
+        draws["platform__motion_phase_s"] = float(np.random.default_rng(seed_stream(seed, "flight_phase"))
+                                                  .uniform(0, period))
     return draws
 
 
