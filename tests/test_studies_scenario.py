@@ -342,12 +342,14 @@ def test_run_list_shows_the_studies_and_the_example_scenarios():
     done = subprocess.run([sys.executable, "-m", "gimbal_lab.cli", "run", "--list"], capture_output=True, text=True,
                           cwd=ROOT, check=True)
     lines = done.stdout.splitlines()
-    for study in ("paper", "moving-drone", "lens-sweep", "occlusion"):
+    from gimbal_lab.studies import STUDIES
+
+    for study in STUDIES:
         assert any(line.startswith(study + " ") for line in lines), done.stdout
     for name in ("paper-rig", "phone-quad", "long-lens-flight"):
         description = sc.tomllib.loads((SCENARIOS / f"{name}.toml").read_text())["description"]
         assert f"data/scenarios/{name}.toml  {description}" in lines, done.stdout
-    assert len(lines) == 4 + len(list(SCENARIOS.glob("*.toml")))
+    assert len(lines) == len(STUDIES) + len(list(SCENARIOS.glob("*.toml")))
 
 
 def test_a_scenario_on_a_calibration_file_runs_end_to_end_from_the_command_line(rig):
