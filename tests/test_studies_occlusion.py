@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+import scipy.ndimage
 
 from gimbal_lab import stats
 from gimbal_lab.simulation import TrackingConfig, TrackingResult
@@ -86,6 +87,116 @@ def test_config_from_toml_and_the_shipped_file_is_the_default(tmp_path):
         oc.OcclusionStudy.from_toml(other)
 
 
+def test_the_circles_occluders_are_those_the_study_ran_before_the_dose_bit_for_bit():
+    # centre and size of each circle's occluder as placed at commit 8dd378a (before the manoeuvring
+    # target's dose was built), as float.hex: the dose must not move them by one bit
+    before = {
+        "pole 0.2 s": (("0x1.a6cf16f5757d8p-1", "0x0.0p+0", "0x1.f47ae147ae148p-1"),
+                       ("0x1.3333333333333p-3", "0x1.3333333333333p-3", "0x1.f47ae147ae148p+0")),
+        "panel 0.5 s": (("0x1.4cce8bac8d7f9p+0", "0x0.0p+0", "0x1.a7ae147ae147bp+0"),
+                        ("0x1.47ae147ae147bp-6", "0x1.3333333333333p-1", "0x1.3333333333333p-1")),
+        "panel 1.0 s": (("0x1.dd4be13fe1100p-1", "0x0.0p+0", "0x1.a7ae147ae147bp+0"),
+                        ("0x1.47ae147ae147bp-6", "0x1.3333333333333p-1", "0x1.3333333333333p-1")),
+    }
+    study = oc.OcclusionStudy(replicates=3)
+    for name, (centre, size) in before.items():
+        expected = oc.Occluder(name.split()[0], tuple(map(float.fromhex, centre)), tuple(map(float.fromhex, size)))
+        assert oc.occluders_for(name) == (expected,)
+        for seed in study.seeds:
+            assert study.config(name, "circle", "IMM", seed).target.occluders == (expected,)
+
+
+# ----------------------------------------------------------------------------------------------
+# the manoeuvring target's dose
+# ----------------------------------------------------------------------------------------------
+DOSE_STUDY = oc.OcclusionStudy(replicates=10)
+#: Seeds whose target is below the camera at t_m (0, 2, 9) and above it (1, 5, 6), checked in the test
+DOSE_SEEDS = (0, 1, 2, 5, 6, 9)
+ORACLE_STEP_S = 5e-4  # the oracle samples the path every 0.5 ms (the module every 1 ms)
+
+
+def oracle_hidden(lo, hi, origin, points):
+    """Liang–Barsky clipping of each segment origin → point against the box [lo, hi]: the segment
+    meets the box when the parameter interval left after clipping by the six faces is not empty."""
+    d = np.asarray(points, float) - origin
+    t0, t1 = np.zeros(len(d)), np.ones(len(d))
+    ok = np.ones(len(d), bool)
+    for axis in range(3):
+        for p_k, q_k in ((-d[:, axis], origin[axis] - lo[axis]), (d[:, axis], hi[axis] - origin[axis])):
+            parallel = p_k == 0
+            ok &= ~(parallel & (q_k < 0))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r = q_k / p_k
+            t0 = np.where(p_k < 0, np.maximum(t0, r), t0)
+            t1 = np.where(p_k > 0, np.minimum(t1, r), t1)
+    return ok & (t0 <= t1)
+
+
+def oracle_pass_s(lo, hi, config):
+    """The run of hidden samples around t_m = 4 s (the middle of revolutions 1–3 of 2 s), every
+    0.5 ms over the measured part, 2–6 s of run time; the path's time is run time + start phase."""
+    assert config.revolutions == 3.0 and config.target.period_s == 2.0
+    t = 4.0 + ORACLE_STEP_S * np.arange(-4000, 4001)
+    hidden = oracle_hidden(lo, hi, config.home_camera_m, config.path.position(t + config.target.start_phase_s))
+    runs, _ = scipy.ndimage.label(hidden)  # the runs of hidden samples, numbered; 0 where seen
+    return 0.0 if runs[4000] == 0 else np.count_nonzero(runs == runs[4000]) * ORACLE_STEP_S
+
+
+def oracle_box(kind, distance_m, camera, target):
+    """The dose's box by the design's words: its vertical mid-line through the point ``distance_m``
+    along the line of sight, standing below the camera's height or hanging above it."""
+    point = camera + distance_m * (target - camera) / np.linalg.norm(target - camera)
+    width, depth, height = (0.15, 0.15, camera[2]) if kind == "pole" else (0.6, 0.02, 0.6)
+    z_lo, z_hi = (camera[2], camera[2] + height) if target[2] > camera[2] else (camera[2] - height, camera[2])
+    return (np.array([point[0] - depth / 2, point[1] - width / 2, z_lo]),
+            np.array([point[0] + depth / 2, point[1] + width / 2, z_hi]))
+
+
+@pytest.mark.parametrize("occlusion", ["pole 0.2 s", "panel 0.5 s", "panel 1.0 s"])
+def test_the_manoeuvring_targets_occluder_gives_its_dose_or_the_closest_pass(occlusion):
+    kind, wanted_s = oc.OCCLUSIONS[occlusion]
+    placements = []
+    for seed in DOSE_SEEDS:
+        config = DOSE_STUDY.config(occlusion, "manoeuvring", "CV", seed)
+        (box,) = config.target.occluders
+        placement = oc.dose_placement(kind, wanted_s, config)
+        assert placement.occluder == box
+        camera = config.home_camera_m
+        target = config.path.position(4.0 + config.target.start_phase_s)  # t_m, motion time
+        hanging = target[2] > camera[2]
+        lo, hi = box.bounds_m
+        # the edge at the camera's height: the top of a standing occluder, the bottom of a hanging one
+        assert placement.hanging == hanging
+        assert (lo[2] if hanging else hi[2]) == pytest.approx(camera[2], abs=1e-12)
+        assert box.size_m[2] == pytest.approx(camera[2] if kind == "pole" else 0.6, abs=1e-12)
+        # its vertical mid-line crosses the line of sight at t_m, between the margins
+        sight = (target - camera) / np.linalg.norm(target - camera)
+        offset = np.asarray(box.centre_m[:2]) - camera[:2]
+        assert abs(offset[0] * sight[1] - offset[1] * sight[0]) < 1e-12 and offset @ sight[:2] > 0
+        distance = np.linalg.norm(offset) / np.linalg.norm(sight[:2])
+        assert distance == pytest.approx(placement.distance_m, abs=1e-9)
+        assert 0.3 - 1e-9 <= distance <= np.linalg.norm(target - camera) - 0.3 + 1e-9
+        assert lo[2] - 1e-9 <= camera[2] + distance * sight[2] <= hi[2] + 1e-9
+        # it never touches the target (sphere, 0.1 m) at t_m
+        assert np.linalg.norm(target - np.clip(target, lo, hi)) > config.target.sphere_radius_m
+        # the pass around t_m, by the oracle: the dose within a sampling step of each (1 ms, 0.5 ms) ...
+        dose_s = oracle_pass_s(lo, hi, config)
+        assert dose_s == pytest.approx(placement.dose_s, abs=oc.DOSE_STEP_S + ORACLE_STEP_S)
+        if placement.attained:
+            assert dose_s == pytest.approx(wanted_s, abs=oc.DOSE_STEP_S + ORACLE_STEP_S)
+        # ... and no place on the line of sight (every 2 cm, where the mid-line still crosses it)
+        # gives a pass closer to the dose: the fallback's rule, and Brent's where it is attained
+        reach = (box.size_m[2] / abs(sight[2])) if sight[2] else np.inf
+        others = [oracle_pass_s(*oracle_box(kind, d, camera, target), config)
+                  for d in np.arange(0.3, min(np.linalg.norm(target - camera) - 0.3, reach), 0.02)]
+        best = min(abs(o - wanted_s) for o in others)
+        assert abs(dose_s - wanted_s) <= best + oc.DOSE_STEP_S + 2 * ORACLE_STEP_S, (seed, dose_s, best)
+        placements.append(placement)
+    assert {p.hanging for p in placements} == {True, False}  # both rules exercised
+    if occlusion == "panel 1.0 s":
+        assert sum(p.attained for p in placements) >= 3  # the 1 s pass is attainable for most targets
+
+
 # ----------------------------------------------------------------------------------------------
 # episodes and metrics on hand-built runs
 # ----------------------------------------------------------------------------------------------
@@ -141,6 +252,37 @@ def test_run_metrics_by_hand():
     assert m["nees_visible"] == pytest.approx(3.0) and m["nees_hidden"] == pytest.approx(3.0)
     assert m["exact_detection_rate_pct"] == pytest.approx(50.0)
     assert m["exact_error_m"] == pytest.approx(0.035 / 3)  # half the circle's 0.01, 0.02, 0.04
+
+
+def test_the_realised_dose_is_the_run_of_hidden_frames_holding_mid_run():
+    # t_m = 4 s is frame 6 at 1.5 frames/s; the measured frames are 3–8
+    run = fake_run(hidden=[0, 1, 1, 1, 0, 1], detected=[1] * 6, angle_deg=[1] * 6, errors=[0.01] * 6,
+                   target="manoeuvring")
+    m = oc.run_metrics(run)
+    assert m["dose_s"] == pytest.approx(3 / 1.5)  # frames 4, 5 and 6
+    assert m["hidden_total_s"] == pytest.approx(4 / 1.5) and m["hidden_s"] == pytest.approx(4 / 1.5 / 2)
+    seen = fake_run(hidden=[1, 1, 1, 0, 1, 1], detected=[1] * 6, angle_deg=[1] * 6, errors=[0.01] * 6,
+                    target="manoeuvring")
+    assert oc.run_metrics(seen)["dose_s"] == 0.0 and oc.run_metrics(seen)["hidden_total_s"] == pytest.approx(5 / 1.5)
+    circle = fake_run(hidden=[0, 1, 1, 1, 0, 1], detected=[1] * 6, angle_deg=[1] * 6, errors=[0.01] * 6)
+    assert math.isnan(oc.run_metrics(circle)["dose_s"])  # the circle's dose is per revolution (hidden_s)
+    doses = oc.dose_summary(oc.replicate_table([run, seen, circle]))
+    assert doses.to_dict("records") == [dict(occlusion="panel 1.0 s", wanted_s=1.0, runs=2, dose_mean_s=1.0,
+                                             dose_min_s=0.0, dose_max_s=2.0, hidden_mean_s=3.0, hidden_min_s=4 / 1.5,
+                                             hidden_max_s=5 / 1.5)]
+
+
+def test_a_still_camera_sees_the_placed_dose_within_a_frame():
+    from gimbal_lab.simulation import simulate
+
+    # seed 3: the target below the camera at t_m, a standing 1.0 s panel (attained); the passive camera at home
+    config = DOSE_STUDY.config("panel 1.0 s", "manoeuvring", "passive", 3)
+    placement = oc.dose_placement("panel", 1.0, config)
+    assert placement.attained and not placement.hanging
+    m = oc.run_metrics(simulate(config))
+    # the frames sample the pass every 1/30 s where the placement sampled it every 1 ms
+    assert m["dose_s"] == pytest.approx(placement.dose_s, abs=1 / 30 + oc.DOSE_STEP_S)
+    assert m["hidden_total_s"] == pytest.approx(placement.total_s, abs=2 / 30 + oc.DOSE_STEP_S)
 
 
 def test_nees_counts_the_measured_frames_with_a_live_track_only():

@@ -3,13 +3,24 @@ target is hidden, and which filter for which motion? (paper §5: a Bayesian filt
 tracking through occlusion; its related work uses an IMM).
 
 Occluders (:data:`OCCLUSIONS`): a vertical pole 0.15 m wide and a 0.6 m square panel, matte
-grey boxes (:class:`gimbal_lab.scene.Occluder`). Each stands on the line from the home camera to
-the lowest point of the paper's circle, its top edge level with the home camera's optical centre,
-at the distance from the camera where the circle's target is hidden (the line of sight to its
-centre blocked) for the stated time per revolution, seen from the home camera:
-:func:`place_occluder` solves for that distance. A top edge at the camera's height can hide at
-most the arc below that height, 0.97 s of the 2 s period, so the "1.0 s" panel hides that arc
-and stands where it first does.
+grey boxes (:class:`gimbal_lab.scene.Occluder`), their faces parallel to the world's axes.
+
+* The circle's: each stands on the line from the home camera to the lowest point of the paper's
+  circle, its top edge level with the home camera's optical centre, at the distance from the
+  camera where the circle's target is hidden (the line of sight to its centre blocked) for the
+  stated time per revolution, seen from the home camera: :func:`place_occluder` solves for that
+  distance. A top edge at the camera's height can hide at most the arc below that height, 0.97 s
+  of the 2 s period, so the "1.0 s" panel hides that arc and stands where it first does.
+* The manoeuvring target's own, placed per run (the occlusion *dose*, docs/design.md, "When does
+  a gimbal pay off?", Repairs and the decision of 2026-12-02): at the middle of the measured part,
+  t_m (:func:`dose_time_s`), the occluder's vertical mid-line crosses the line from the home
+  camera to the target's centre; it stands on the ground, top edge at the camera's height, where
+  the target is below the camera's optical centre at t_m, and hangs from above, mirrored (bottom
+  edge at the camera's height, same size), where it is above. Its distance along that line is
+  found with Brent's method so that the pass around t_m (the hidden interval containing t_m, seen
+  from the home camera) lasts the condition's 0.2, 0.5 or 1.0 s; when no distance between 0.3 m
+  and 0.3 m short of the target gives that time, it stands where the pass comes closest
+  (:func:`place_dose_occluder`). Other passes behind it may occur.
 
 Targets (:data:`TARGETS`): the red sphere on the paper's circle, and on the manoeuvring path
 (:class:`gimbal_lab.trajectories.ManoeuvringTarget`: 1 m/s legs joined by 5 m/s² coordinated
@@ -38,6 +49,9 @@ target centre is hidden, wholly inside them, that ends before the run does):
 * ``reacquire_frames``: frames from the reappearance to the first detection (NaN if none before
   the next episode or the run's end);
 * ``after_error_m``: distance error over the :data:`AFTER_FRAMES` frames after re-acquisition;
+* ``hidden_s``: hidden time per measured revolution; ``hidden_total_s``: hidden time over the
+  measured part, s; ``dose_s`` (manoeuvring target only, NaN on the circle): the realised dose,
+  the length of the run of hidden frames containing the frame at t_m (0 when that frame is seen);
 * ``visible_error_m``, ``visible_offset_px``: distance error and true image offset on frames where
   the whole outline is visible; ``detection_rate_pct``, ``partial_pct`` (detections with a cut
   silhouette), and ``filter_nees`` (mean NEES of the filter's prediction against the truth,
@@ -57,12 +71,6 @@ occlusion); **H2c** ... and is at least as good as CV and CA on the circle (non-
 and target: the paper loop's circle method and its exact cone fit against the passive camera's
 exact fit, distance error on the frames both localised (:func:`pipeline_table`). Every verdict of
 the report is one family held to 5 % by Holm (:func:`gimbal_lab.stats.holm`).
-
-The design's occlusion dose for the manoeuvring target (an occluder per seed on the line to the
-target at the middle of the measured part, top edge at the camera's height) is not built: with the
-target above the camera's height at that moment (seven of the ten seeds), no occluder whose top is
-at the camera's height can stand on that line of sight. The manoeuvring target meets the circle's
-occluders, and each run's realised hidden time is reported (``hidden_s``).
 """
 
 from __future__ import annotations
@@ -86,9 +94,10 @@ from .paper import replicate_phase_s
 
 __all__ = [
     "OcclusionStudy", "Study", "OCCLUSIONS", "TARGETS", "LOOPS", "FILTERS", "AFTER_FRAMES", "ANGLE_FLOOR_DEG",
-    "PIPELINES", "BP_CLAIMS", "place_occluder", "hidden_time_s", "occluders_for", "grid", "episodes", "timeline_runs",
-    "replicate_table", "pipeline_table", "summary_table", "nees_band", "check_hypotheses", "hypotheses_markdown",
-    "write_report", "run_study", "example_view",
+    "PIPELINES", "BP_CLAIMS", "DOSE_MARGIN_M", "DOSE_STEP_S", "place_occluder", "hidden_time_s", "dose_time_s",
+    "dose_hidden_s", "DosePlacement", "dose_placement", "place_dose_occluder", "dose_table", "occluders_for", "grid",
+    "episodes", "timeline_runs", "replicate_table", "pipeline_table", "summary_table", "dose_summary", "nees_band",
+    "check_hypotheses", "hypotheses_markdown", "write_report", "run_study", "example_view",
 ]
 
 NAME = "occlusion"
@@ -167,11 +176,203 @@ def place_occluder(kind: str, hidden_s: float) -> Occluder:
     return _occluder(kind, distance, camera)
 
 
-def occluders_for(occlusion: str) -> tuple[Occluder, ...]:
-    """The occluders of one :data:`OCCLUSIONS` condition."""
+# ----------------------------------------------------------------------------------------------
+# the manoeuvring target's occlusion dose
+# ----------------------------------------------------------------------------------------------
+#: The dose's occluder stands at least this far from the home camera and this far short of the
+#: target, along the line of sight, m (docs/design.md, the decision of 2026-12-02).
+DOSE_MARGIN_M = 0.3
+#: Step at which the target's path is sampled when measuring a dose, s: a dose is met within it.
+DOSE_STEP_S = 1e-3
+#: Step of the scan along the line of sight that brackets the distances for Brent's method, m.
+_DOSE_SCAN_M = 0.05
+
+
+def dose_time_s(config: TrackingConfig) -> float:
+    """t_m: the middle of a run's measured part (the revolutions after the first), run time, s
+    (the target's motion time is t_m + ``config.target.start_phase_s``)."""
+    return 0.5 * (1.0 + config.revolutions) * config.target.period_s
+
+
+def _run_around(flags, i: int) -> int:
+    """Length of the run of True in ``flags`` that holds index ``i`` (0 when ``flags[i]`` is False).
+
+    Examples
+    --------
+    >>> _run_around([True, False, True, True, True, False], 3), _run_around([True, False], 1)
+    (3, 0)
+    """
+    flags = np.asarray(flags, bool)
+    if not flags[i]:
+        return 0
+    before, after = np.flatnonzero(~flags[:i]), np.flatnonzero(~flags[i:])
+    start = int(before[-1]) + 1 if before.size else 0
+    end = i + int(after[0]) if after.size else len(flags)
+    return end - start
+
+
+def _dose_samples(config: TrackingConfig) -> tuple[np.ndarray, int]:
+    """The target's centre every :data:`DOSE_STEP_S` across the measured part, symmetric about
+    t_m, shape (2k + 1, 3), m, and k (the index of t_m)."""
+    half_s = 0.5 * (config.revolutions - 1.0) * config.target.period_s
+    k = int(math.floor(half_s / DOSE_STEP_S + 1e-9))
+    t = dose_time_s(config) + DOSE_STEP_S * np.arange(-k, k + 1)
+    return config.path.position(t + config.target.start_phase_s), k
+
+
+def dose_hidden_s(occluders, config: TrackingConfig) -> tuple[float, float]:
+    """The dose the ``occluders`` give a run, seen from the home camera: ``(dose_s, total_s)``.
+
+    ``dose_s`` is the pass around t_m (:func:`dose_time_s`), the length of the hidden interval
+    that contains t_m (0 when the target's centre is seen at t_m); ``total_s`` is the hidden time
+    over the whole measured part. The path is sampled every :data:`DOSE_STEP_S` over the
+    measured part, so both are multiples of it, and the pass is cut where the measured part ends.
+    """
+    points, k = _dose_samples(config)
+    hidden = ~points_visible(tuple(occluders), config.home_camera_m, points)
+    return _run_around(hidden, k) * DOSE_STEP_S, float(hidden.sum()) * DOSE_STEP_S
+
+
+def _dose_occluder(kind: str, distance_m: float, camera_m, target_m, hidden_s: float) -> Occluder:
+    """The pole or panel whose vertical mid-line crosses the line from ``camera_m`` to ``target_m``
+    ``distance_m`` along it: standing on the ground, top edge at the camera's height, when the
+    target is below the camera; hanging from above, bottom edge at the camera's height (mirrored,
+    same size), when it is above. Faces parallel to the world's axes, as the circle's. Its name
+    holds the dose it stands for ("panel, dose 0.5 s"): where two doses fall back to the same
+    place, their runs stay apart."""
+    camera, target = np.asarray(camera_m, float), np.asarray(target_m, float)
+    sight = (target - camera) / np.linalg.norm(target - camera)
+    x, y = (camera + distance_m * sight)[:2]
+    height_m = float(camera[2])
+    size = _dose_size_m(kind, camera)
+    hanging = target[2] > camera[2]
+    return Occluder(f"{kind}, dose {hidden_s:g} s", (x, y, height_m + 0.5 * size[2] if hanging
+                                                     else height_m - 0.5 * size[2]), size)
+
+
+def _dose_size_m(kind: str, camera_m) -> tuple[float, float, float]:
+    """Extents (x, y, z) of the dose's pole or panel, m: the circle's (the pole as tall as the
+    camera's height)."""
+    if kind == "pole":
+        return (POLE_WIDTH_M, POLE_WIDTH_M, float(camera_m[2]))
+    return (PANEL_THICKNESS_M, PANEL_SIZE_M, PANEL_SIZE_M)
+
+
+@dataclass(frozen=True)
+class DosePlacement:
+    """Where one dose's occluder stands for one run (:func:`dose_placement`).
+
+    Attributes
+    ----------
+    occluder : gimbal_lab.scene.Occluder
+    distance_m : float
+        Along the line of sight from the home camera to the target's centre at t_m, m.
+    hanging : bool
+        True where the target is above the camera's optical centre at t_m (the occluder hangs).
+    wanted_s, dose_s, total_s : float
+        The condition's dose, the pass around t_m the occluder gives and the measured part's
+        hidden time, seen from the home camera (:func:`dose_hidden_s`), s.
+    attained : bool
+        ``dose_s`` is within :data:`DOSE_STEP_S` of ``wanted_s``; False where the fallback placed
+        it (the closest pass between the margins).
+    """
+
+    occluder: Occluder
+    distance_m: float
+    hanging: bool
+    wanted_s: float
+    dose_s: float
+    total_s: float
+    attained: bool
+
+
+@functools.lru_cache(maxsize=512)
+def _dose_placement(kind: str, wanted_s: float, base: TrackingConfig) -> DosePlacement:
+    from scipy.optimize import brentq
+
+    camera = base.home_camera_m
+    target = base.path.position(dose_time_s(base) + base.target.start_phase_s)
+    points, k = _dose_samples(base)
+
+    def miss(d):  # the pass around t_m at distance d, less the wanted dose, s
+        hidden = _dose_occluder(kind, d, camera, target, wanted_s).blocks(camera, points)
+        return _run_around(hidden, k) * DOSE_STEP_S - wanted_s
+
+    length = float(np.linalg.norm(target - camera))
+    # beyond ``reach`` the line of sight runs under a standing occluder (over a hanging one): its
+    # vertical mid-line no longer crosses it
+    climb = abs(target[2] - camera[2]) / length
+    reach = _dose_size_m(kind, camera)[2] / climb if climb > 0 else math.inf
+    near, far = DOSE_MARGIN_M, min(length - DOSE_MARGIN_M, reach)
+    if far <= near:
+        raise ValueError(f"the target is {length:.2f} m from the camera at t_m, {climb * length:.2f} m above or "
+                         f"below it: no room for a {kind} {DOSE_MARGIN_M} m from both that crosses the line of sight")
+    scan = np.append(np.arange(near, far, _DOSE_SCAN_M), far)
+    misses = [miss(d) for d in scan]
+    met = lambda m: abs(m) <= DOSE_STEP_S * (1.0 + 1e-9)  # noqa: E731 (the pass is sampled every step)
+    tried = list(zip(scan, misses))
+    distance = None
+    for i, d in enumerate(scan):  # the nearest distance that gives the dose
+        if met(misses[i]):
+            distance = d
+            break
+        if i + 1 < len(scan) and misses[i] * misses[i + 1] < 0:
+            root = brentq(miss, d, scan[i + 1], xtol=1e-4)
+            tried.append((root, miss(root)))
+            if met(tried[-1][1]):
+                distance = root
+                break
+    if distance is None:  # the fallback: where the pass comes closest to the dose (the nearest such)
+        distance = min(tried, key=lambda pair: (abs(pair[1]), pair[0]))[0]
+    occluder = _dose_occluder(kind, float(distance), camera, target, wanted_s)
+    dose_s, total_s = dose_hidden_s((occluder,), base)
+    return DosePlacement(occluder, float(distance), bool(target[2] > camera[2]), wanted_s, dose_s, total_s,
+                         met(dose_s - wanted_s))
+
+
+def dose_placement(kind: str, hidden_s: float, config: TrackingConfig) -> DosePlacement:
+    """The manoeuvring target's occluder of ``kind`` ("pole" or "panel") for the run ``config``,
+    placed so that the pass around t_m lasts ``hidden_s`` (docs/design.md, Repairs and the
+    decision of 2026-12-02; the module's rule).
+
+    The target's centre at t_m (:func:`dose_time_s`) above or below the home camera's optical
+    centre decides whether the occluder hangs or stands (:class:`DosePlacement`). The pass is
+    sampled every :data:`DOSE_STEP_S` (:func:`dose_hidden_s`); the line of sight is scanned every
+    5 cm from :data:`DOSE_MARGIN_M` to :data:`DOSE_MARGIN_M` short of the target (or, nearer, to
+    where the line leaves the occluder's height: its vertical mid-line must cross the line), and
+    where the pass crosses ``hidden_s`` between two scanned distances Brent's method
+    (:func:`scipy.optimize.brentq`, 0.1 mm) finds the distance; the nearest distance that gives
+    ``hidden_s`` within one sampling step wins. When none does (the pass is too short everywhere,
+    or jumps past ``hidden_s`` where it merges with another), the occluder stands where the pass
+    comes closest, and ``attained`` is False. Placements are cached per run (what they depend on:
+    the path, the phase, the run's length and the home camera; the loop does not matter).
+    """
+    _choice("kind", kind, ("pole", "panel"))
+    hidden_s = _number("hidden_s", hidden_s, low=0.0, low_open=True)
+    if not isinstance(config, TrackingConfig):
+        raise TypeError(f"config must be a TrackingConfig, got {type(config).__name__}")
+    if config.target.trajectory != TARGETS["manoeuvring"]:
+        raise ValueError(f"the dose is placed for the manoeuvring target, got target.trajectory "
+                         f"{config.target.trajectory!r}")
+    return _dose_placement(kind, float(hidden_s), config.with_(target__occluders=(), pointing=Pointing()))
+
+
+def place_dose_occluder(kind: str, hidden_s: float, config: TrackingConfig) -> Occluder:
+    """The occluder of :func:`dose_placement`."""
+    return dose_placement(kind, hidden_s, config).occluder
+
+
+def occluders_for(occlusion: str, config: TrackingConfig | None = None) -> tuple[Occluder, ...]:
+    """The occluders of one :data:`OCCLUSIONS` condition: the circle's (:func:`place_occluder`),
+    or, when ``config`` is a run of the manoeuvring target, that run's own dose
+    (:func:`place_dose_occluder`)."""
     _choice("occlusion", occlusion, tuple(OCCLUSIONS))
     spec = OCCLUSIONS[occlusion]
-    return () if spec is None else (place_occluder(*spec),)
+    if spec is None:
+        return ()
+    if config is not None and config.target.trajectory == TARGETS["manoeuvring"]:
+        return (place_dose_occluder(*spec, config),)
+    return (place_occluder(*spec),)
 
 
 @dataclass(frozen=True)
@@ -200,11 +401,13 @@ class OcclusionStudy(StudyParams):
         """The run of one cell and replicate."""
         _choice("target", target, tuple(TARGETS))
         _choice("loop", loop, tuple(LOOPS))
-        return TrackingConfig(
+        _choice("occlusion", occlusion, tuple(OCCLUSIONS))
+        bare = TrackingConfig(
             camera=Camera(fps=self.fps, latency_frames=self.latency_frames, noise_std=self.noise_std),
             target=Target(kind="sphere", trajectory=TARGETS[target], period_s=self.period_s,
-                          start_phase_s=replicate_phase_s(seed, self.period_s), occluders=occluders_for(occlusion)),
+                          start_phase_s=replicate_phase_s(seed, self.period_s)),
             pointing=LOOPS[loop], revolutions=self.revolutions, seed=seed)
+        return bare.with_(target__occluders=occluders_for(occlusion, bare)) if OCCLUSIONS[occlusion] else bare
 
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
@@ -221,13 +424,37 @@ def grid(study: OcclusionStudy | None = None, occlusions=None, targets=None, loo
             for seed in study.seeds]
 
 
+def dose_table(study: OcclusionStudy | None = None, occlusions=None) -> pd.DataFrame:
+    """The manoeuvring target's doses as placed, one row per occlusion (with an occluder) and seed.
+
+    Columns: occlusion, seed, occluder ("pole", "panel"), placement ("standing", "hanging"),
+    distance_m (along the line of sight), wanted_s, dose_s (the pass around t_m), total_s (the
+    measured part's hidden time), both seen from the home camera (:func:`dose_placement`), and
+    attained (``dose_s`` within :data:`DOSE_STEP_S` of ``wanted_s``).
+    """
+    study = study or OcclusionStudy()
+    occlusions = tuple(OCCLUSIONS) if occlusions is None else tuple(occlusions)
+    for occlusion in occlusions:
+        _choice("occlusion", occlusion, tuple(OCCLUSIONS))
+    occlusions = [o for o in occlusions if OCCLUSIONS[o] is not None]
+    rows = []
+    for occlusion in occlusions:
+        for seed in study.seeds:
+            p = dose_placement(*OCCLUSIONS[occlusion], study.config("none", "manoeuvring", "paper", seed))
+            rows.append({"occlusion": occlusion, "seed": seed, "occluder": OCCLUSIONS[occlusion][0],
+                         "placement": "hanging" if p.hanging else "standing", "distance_m": p.distance_m,
+                         "wanted_s": p.wanted_s, "dose_s": p.dose_s, "total_s": p.total_s, "attained": p.attained})
+    return pd.DataFrame(rows)
+
+
 # ----------------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------------
 def _names(config: TrackingConfig) -> tuple[str, str, str]:
     """(occlusion, target, loop) names of a config of the study."""
-    occlusion = next((name for name in OCCLUSIONS if occluders_for(name) == config.target.occluders), None)
     target = next((name for name, traj in TARGETS.items() if traj == config.target.trajectory), None)
+    occlusion = None if target is None else next(
+        (name for name in OCCLUSIONS if occluders_for(name, config) == config.target.occluders), None)
     loop = next((name for name, pointing in LOOPS.items() if pointing == config.pointing), None)
     if occlusion is None or target is None or loop is None:
         raise ValueError(f"the config {config.label} is not one of the occlusion study's")
@@ -303,9 +530,15 @@ def run_metrics(result) -> dict:
     nees = f["filter_nees"].to_numpy(float)
     live = measured & np.isfinite(nees)  # the frame table holds a prediction for a live track only
     exact_ok, exact_error = _located(f, "exact")
+    # the realised dose: the run of hidden frames holding the frame at t_m (the manoeuvring target's)
+    at_mid = int(round(dose_time_s(c) * c.camera.fps))
+    dose = (_run_around(hidden, at_mid) / c.camera.fps if c.target.trajectory == TARGETS["manoeuvring"]
+            and at_mid < len(f) else math.nan)
     return {
         "episodes": len(found),
         "hidden_s": hidden[first:].sum() / c.camera.fps / ((len(f) - first) / c.frames_per_revolution),
+        "hidden_total_s": hidden[first:].sum() / c.camera.fps,
+        "dose_s": dose,
         "pointing_error_deg": _mean(angle[measured]),
         "hidden_pointing_deg": _mean(hidden_angle),
         "reappear_error_deg": _mean(reappear),
@@ -390,8 +623,9 @@ def pipeline_table(results) -> pd.DataFrame:
                              key=lambda col: col if col.name == "seed" else col.map(order), ignore_index=True)
 
 
-_SUMMARY_COLUMNS = ("hidden_s", "hidden_pointing_deg", "reappear_error_deg", "lost_pct", "reacquire_frames",
-                    "after_error_m", "visible_error_m", "visible_offset_px", "detection_rate_pct", "partial_pct",
+_SUMMARY_COLUMNS = ("hidden_s", "hidden_total_s", "dose_s", "hidden_pointing_deg", "reappear_error_deg", "lost_pct",
+                    "reacquire_frames", "after_error_m", "visible_error_m", "visible_offset_px", "detection_rate_pct",
+                    "partial_pct",
                     "nees_visible", "nees_hidden", "nees_live", "exact_detection_rate_pct", "exact_error_m")
 
 
@@ -406,6 +640,22 @@ def summary_table(replicates: pd.DataFrame) -> pd.DataFrame:
         row.update(pointing_error_deg=mean, ci_low_deg=low, ci_high_deg=high)
         for col in _SUMMARY_COLUMNS:
             row[col] = _mean(g[col])
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def dose_summary(replicates: pd.DataFrame) -> pd.DataFrame:
+    """The manoeuvring target's realised doses per occlusion with an occluder, over every loop and
+    replicate: runs, the dose (``dose_s``: the hidden frames around t_m) and the measured part's
+    hidden time (``hidden_total_s``), each as mean, min and max, s."""
+    with_occluder = replicates.occlusion.map(lambda o: OCCLUSIONS[o] is not None).astype(bool)
+    sel = replicates[(replicates.target == "manoeuvring") & with_occluder]
+    rows = []
+    for occlusion, g in sel.groupby("occlusion", sort=False):
+        row = {"occlusion": occlusion, "wanted_s": OCCLUSIONS[occlusion][1], "runs": len(g)}
+        for col, name in (("dose_s", "dose"), ("hidden_total_s", "hidden")):
+            row.update({f"{name}_mean_s": _mean(g[col]), f"{name}_min_s": float(g[col].min()),
+                        f"{name}_max_s": float(g[col].max())})
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -536,11 +786,13 @@ def verdict_reason(row) -> str:
 
 
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
-                        study: OcclusionStudy | None = None, pipelines: pd.DataFrame | None = None) -> str:
+                        study: OcclusionStudy | None = None, pipelines: pd.DataFrame | None = None,
+                        replicates: pd.DataFrame | None = None) -> str:
     """claims.md of the study: the setting, every condition's verdict with its interval, δ and
     p-values, the count per hypothesis at both levels (as computed and after Holm), a measured
     reason for each condition that does not hold, the NEES bands, the pipelines' localisation
-    rates, and the table per occlusion, target and loop."""
+    rates, the manoeuvring target's realised doses (from ``replicates``), and the table per
+    occlusion, target and loop (its realised dose and total hidden time beside)."""
     from .lens_sweep import _markdown_table, family_counts
 
     study = study or OcclusionStudy()
@@ -556,8 +808,12 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         "camera. Targets: the sphere on the circle and on a seeded manoeuvring path (1 m/s legs, 5 m/s² turns). "
         f"Loops: the paper's PI image loop (repeats its last rate command for {FILTER_COAST_S:g} s while the target "
         "is lost, then holds), pointing driven by a CV, CA or IMM filter on the target's world position, and the "
-        "best passive camera (stabilised at home, exact cone fit). The manoeuvring target meets the circle's "
-        "occluders (the design's per-seed dose could not be built: see the study's module). "
+        "best passive camera (stabilised at home, exact cone fit). The manoeuvring target meets occluders of its "
+        "own, placed per replicate (the dose): at the middle of the measured part the occluder's vertical mid-line "
+        "crosses the line of sight, standing (top edge at the camera's height) where the target is below the camera "
+        "and hanging (bottom edge there) where it is above, at the distance where the pass around that moment "
+        "lasts the condition's 0.2, 0.5 or 1.0 s seen from the home camera; its realised dose and the run's total "
+        "hidden time are tabled below. "
         f"Up to {n} replicates per cell of {study.revolutions:g} revolutions (the first is acquisition), paired by "
         "replicate. BP1: the paper loop's circle method, BP2: its exact cone fit, each against the passive camera's "
         "exact fit, distance error on the frames both localised.",
@@ -593,14 +849,25 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         means[["a_error_m", "b_error_m"]] *= 1000.0
         means = means.rename(columns={"a_error_m": "a error mm", "b_error_m": "b error mm"})
         lines += _markdown_table(means, {c: "{:.1f}" for c in means.columns[5:]})
+    if replicates is not None and len(replicates) and "dose_s" in replicates:
+        doses = dose_summary(replicates)
+        if len(doses):
+            lines += ["", "## The manoeuvring target's occlusion dose, realised (every loop and replicate, s)", "",
+                      "The dose is the run of hidden frames around the middle of the measured part "
+                      f"({study.fps:g} frames/s, seen from the camera where it is, which turns with the gimbal); the "
+                      "total is every hidden frame of the measured part, other passes behind the occluder included. "
+                      "As placed, seen from the home camera every 1 ms: `doses.csv`.", ""]
+            lines += _markdown_table(doses, {c: "{:.3f}" for c in doses.columns if c.endswith("_s")})
     if summary is not None and len(summary):
         lines += ["", "## Per occlusion, target and loop (measured revolutions, means over replicates)", "",
-                  "| occlusion | target | loop | episodes | pointing ° [95 % CI] | hidden ° | reappear ° | lost % | "
-                  "re-acquire frames | error after mm | visible error mm | detected % | NEES visible | NEES hidden |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| occlusion | target | loop | episodes | dose s | hidden s | pointing ° [95 % CI] | hidden ° | "
+                  "reappear ° | lost % | re-acquire frames | error after mm | visible error mm | detected % | "
+                  "NEES visible | NEES hidden |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in summary.itertuples():
             lines.append(
-                f"| {row.occlusion} | {row.target} | {row.loop} | {row.episodes} | {row.pointing_error_deg:.2f} "
+                f"| {row.occlusion} | {row.target} | {row.loop} | {row.episodes} | {row.dose_s:.2f} | "
+                f"{row.hidden_total_s:.2f} | {row.pointing_error_deg:.2f} "
                 f"[{row.ci_low_deg:.2f}, {row.ci_high_deg:.2f}] | {row.hidden_pointing_deg:.2f} | "
                 f"{row.reappear_error_deg:.2f} | {row.lost_pct:.0f} | {row.reacquire_frames:.1f} | "
                 f"{1000 * row.after_error_m:.1f} | {1000 * row.visible_error_m:.1f} | {row.detection_rate_pct:.0f} | "
@@ -635,9 +902,10 @@ def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
     """Write the tables, hypotheses and figures into ``folder``; return the paths written.
 
     Files: ``summary.csv``, ``replicates.parquet`` and ``.csv``, ``pipelines.csv``,
-    ``verdicts.csv``, ``claims.md``, ``study.json`` and ``figures/`` (the occlusion metrics per loop
-    and occlusion, example timelines, the forest plot of every verdict but the NEES bands, which
-    claims.md tables), PNG and SVG.
+    ``verdicts.csv``, ``doses.csv`` (the manoeuvring target's doses as placed, :func:`dose_table`),
+    ``claims.md``, ``study.json`` and ``figures/`` (the occlusion metrics per loop and occlusion,
+    example timelines, the forest plot of every verdict but the NEES bands, which claims.md
+    tables), PNG and SVG.
     """
     from .. import plotting
 
@@ -653,7 +921,8 @@ def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
         ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
         ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
         ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines))),
+        ("doses.csv", lambda p: dose_table(study).to_csv(p, index=False)),
+        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, replicates))),
     ), NAME, study, len(results))
 
     def save(fig, name):
