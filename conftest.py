@@ -116,12 +116,13 @@ def _is_notebook(item) -> bool:
     return Path(str(item.path)).suffix == ".ipynb"
 
 
-#: Replicates per cell under the suite for notebooks whose study is too large at the default 3:
-#: the moving drone's 36 cells of blurred frames and its two arms are about 2,400 CPU-seconds at
-#: 3 replicates on this 2-core machine (16 s a blurred run); at 2 it is two thirds of that. Same
-#: code, fewer replicates; its closing checks hold at any count. A GIMBAL_LAB_REPLICATES set before
-#: `pytest` wins.
-NOTEBOOK_REPLICATES = {"09_moving-drone-and-motion-blur.ipynb": "2"}
+#: Replicates per cell under the suite for notebooks whose study is too large at the default 3.
+#: Below 10 replicates these notebooks also run a test size, a subset of their cells that reaches
+#: every hypothesis (the parameters cell names it): notebook 09 the sphere on vibration and flight
+#: and the marker in flight (52 runs at 2), notebook 10 the sphere through four lenses (48 runs
+#: and 16 cost replays at 2). Same code; their closing checks hold at any count. A
+#: GIMBAL_LAB_REPLICATES set before `pytest` wins.
+NOTEBOOK_REPLICATES = {"09_moving-drone-and-motion-blur.ipynb": "2", "10_lens-sweep-and-fisheye.ipynb": "2"}
 
 
 def pytest_runtest_setup(item):

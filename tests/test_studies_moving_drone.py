@@ -275,6 +275,19 @@ def test_one_motion_checks_what_it_can():
     assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H3", "H4")] == [8, 0, 8, 4]
 
 
+def test_a_partial_grid_checks_only_the_cells_it_ran():
+    """Notebook 09's test size: the sphere on two motions, the marker in flight only."""
+    df = make_replicates(designed_errors())
+    ran = ((df.target == "sphere") & df.motion.isin(["vibration", "flight"])) | ((df.target == "aruco")
+                                                                                 & (df.motion == "flight"))
+    v = md.check_hypotheses(df[ran])
+    # H1, H3: 2 per cell and shutter; H2: the flight cells; H4: 2 per cell
+    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H3", "H4")] == [12, 4, 12, 6]
+    assert set(v["condition"].str.split(", ").str[:2].str.join(", ")) == {"sphere, vibration", "sphere, flight",
+                                                                         "aruco, flight"}
+    assert (v["verdict"] == stats.HOLDS).all()
+
+
 def test_markdown_gives_counts_reasons_and_detection_rates():
     cells = designed_errors()
     cells[("sphere", "hover", "stabilised", "global")] = (0.150, 10.0)
