@@ -17,7 +17,7 @@ from gimbal_lab.studies.paper import replicate_phase_s
 # ----------------------------------------------------------------------------------------------
 # design
 # ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("points", [10, 12, 64])
+@pytest.mark.parametrize("points", [12, 13, 64])
 def test_the_latin_hypercube_hits_each_of_a_factors_strata_once(points):
     u = po.unit_design(points, seed=28)
     assert u.shape == (points, len(po.FACTORS))
@@ -46,7 +46,7 @@ def test_every_factor_value_lies_in_its_range_and_integer_levels_share_the_inter
 
 
 def test_a_points_configs_carry_its_factor_values():
-    study = po.PayoffStudy(points=10, replicates=2)
+    study = po.PayoffStudy(points=12, replicates=2)
     values = {"diameter_px": 40.0, "range_m": 2.5, "off_axis_deg": 12.0, "k1": 0.1, "fps": 45.0,
               "latency_frames": 2.0, "noise_std": 3.5, "exposure_ms": 8.0}
     configs = {p: po.point_config(values, p, seed=3, study=study) for p in po.PIPELINES}
@@ -68,9 +68,9 @@ def test_a_points_configs_carry_its_factor_values():
 
 
 def test_the_grid_runs_every_point_seed_and_pipeline_in_the_index_order():
-    study = po.PayoffStudy(points=10, replicates=2, first_seed=4)
+    study = po.PayoffStudy(points=12, replicates=2, first_seed=4)
     configs, index, table = po.grid(study), po.run_index(study), po.design(study)
-    assert len(configs) == len(index) == 10 * 2 * 3
+    assert len(configs) == len(index) == 12 * 2 * 3
     for c, r in zip(configs, index.itertuples()):
         row = table.iloc[r.point]
         assert c.seed == r.seed and c.target.cone_range_m == row["range_m"] and c.camera.fps == row["fps"]
@@ -79,11 +79,11 @@ def test_the_grid_runs_every_point_seed_and_pipeline_in_the_index_order():
 
 def test_the_study_refuses_bad_sizes_naming_the_field():
     with pytest.raises(ValueError, match="points"):
-        po.PayoffStudy(points=9)
+        po.PayoffStudy(points=11)
     with pytest.raises(ValueError, match="replicates"):
         po.PayoffStudy(replicates=1)
     with pytest.raises(ValueError, match="harmonics"):
-        po.PayoffStudy(points=10, harmonics=5)
+        po.PayoffStudy(points=12, harmonics=3)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -118,19 +118,19 @@ class _Run:
 
 
 def test_the_response_table_pairs_the_pipelines_of_a_point_and_seed():
-    study = po.PayoffStudy(points=10, replicates=2)
+    study = po.PayoffStudy(points=12, replicates=2)
     index = po.run_index(study)
     error = {"active (paper)": 0.030, "active (best)": 0.010, "best passive": 0.015}
     runs = [_Run(_frames([1] * 6, [error[r.pipeline] + 0.001 * r.point + 0.0001 * r.seed] * 6))
             for r in index.itertuples()]
     table = po.response_table(runs, study)
-    assert len(table) == 20 and set(table["common_rate"]) == {1.0}
-    assert table["delta_best_m"].to_numpy() == pytest.approx(np.full(20, -0.005), abs=1e-15)
-    assert table["delta_paper_m"].to_numpy() == pytest.approx(np.full(20, 0.015), abs=1e-15)
+    assert len(table) == 24 and set(table["common_rate"]) == {1.0}
+    assert table["delta_best_m"].to_numpy() == pytest.approx(np.full(24, -0.005), abs=1e-15)
+    assert table["delta_paper_m"].to_numpy() == pytest.approx(np.full(24, 0.015), abs=1e-15)
     row = table[(table["point"] == 3) & (table["seed"] == 1)].iloc[0]
     assert row["best passive"] == pytest.approx(0.015 + 0.003 + 0.0001)
     assert row["range_m"] == po.design(study).iloc[3]["range_m"]
-    with pytest.raises(ValueError, match="expected 60 runs"):
+    with pytest.raises(ValueError, match="expected 72 runs"):
         po.response_table(runs[:-1], study)
 
 
@@ -157,15 +157,15 @@ def test_each_point_gets_bp1_and_bp2_with_holm_over_the_whole_map():
 # ----------------------------------------------------------------------------------------------
 # ranking and boundary
 # ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("points", [24, 64])
+@pytest.mark.parametrize("points", [12, 24, 64])
 def test_the_ranking_puts_the_one_influential_factor_first(points):
     u = po.unit_design(points, seed=5)
     y = 5.0 * u[:, 3] + np.random.default_rng(1).normal(0.0, 0.2, points)  # only k1 matters
     ranking = po.rank_factors(u, y, bootstrap=200, seed=2)
     assert ranking["factor"].iloc[0] == "k1"
     top = ranking.iloc[0]
-    assert top["s1"] > 0.7 and top["s1_low"] > ranking["s1_high"].iloc[1:].max() - 0.5
-    assert (ranking["s1_low"] <= ranking["s1"]).all() and (ranking["s1"] <= ranking["s1_high"]).all()
+    assert top["s1"] > 0.7 and top["s1_low"] > ranking["s1"].iloc[1:].max()  # its interval clears the rest
+    assert (ranking["s1_low"] < ranking["s1"]).all() and (ranking["s1"] < ranking["s1_high"]).all()  # not collapsed
     assert ranking["rank"].tolist() == list(range(1, 9)) and ranking["points"].iloc[0] == points
 
 
@@ -174,8 +174,8 @@ def test_the_ranking_leaves_out_points_without_a_response_and_needs_enough():
     y = 5.0 * u[:, 0]
     y[[2, 7]] = np.nan
     assert po.rank_factors(u, y, bootstrap=50)["points"].iloc[0] == 12
-    y[[3, 4, 5]] = np.nan
-    with pytest.raises(ValueError, match="at least 10 points"):
+    y[3] = np.nan
+    with pytest.raises(ValueError, match="at least 12 points"):
         po.rank_factors(u, y, bootstrap=50)
 
 
@@ -208,7 +208,7 @@ def test_every_pixel_has_a_preimage_through_the_lens_at_either_end_of_the_k1_ran
 
     values = {"diameter_px": 30.0, "range_m": 3.0, "off_axis_deg": 10.0, "k1": k1, "fps": 30.0,
               "latency_frames": 1.0, "noise_std": 2.0, "exposure_ms": 0.0}
-    camera = po.point_config(values, "best passive", seed=0, study=po.PayoffStudy(points=10, replicates=2)).camera
+    camera = po.point_config(values, "best passive", seed=0, study=po.PayoffStudy(points=12, replicates=2)).camera
     u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
     src = undistort_pixels(np.column_stack((u.ravel(), v.ravel())), camera.intrinsics, camera.lens_model)
     assert np.isfinite(src).all()

@@ -79,8 +79,10 @@ FACTORS = (
 )
 FACTOR_NAMES = tuple(f.name for f in FACTORS)
 
-#: The fewest points the map accepts: SALib's rbd_fast (M = 2) fails on fewer than 10.
-MIN_POINTS = 10
+#: The fewest points the map accepts: SALib's rbd_fast bootstraps on half the points, and with
+#: N/2 <= 2M + 1 (M = 2) a resample's periodogram has no bin beyond the harmonics, so its interval
+#: collapses to zero width (and below 10 points it divides by zero).
+MIN_POINTS = 12
 
 #: The two claims judged at every point: (id, the active pipeline compared with the best passive).
 CLAIMS = (("BP1", "active (paper)"), ("BP2", "active (best)"))
@@ -105,8 +107,8 @@ class PayoffStudy(StudyParams):
         As every study's (:class:`~gimbal_lab.studies._params.StudyParams`). The inherited
         ``fps``, ``latency_frames`` and ``noise_std`` are not used: the map samples them.
     points : int
-        Points of the Latin hypercube, >= 10 (``rbd_fast``'s bootstrap fails below; the boundary's
-        surface has four coefficients); 64 at full size.
+        Points of the Latin hypercube, >= :data:`MIN_POINTS` (12: ``rbd_fast``'s bootstrap interval
+        collapses below); 64 at full size.
     design_seed : int
         Seed of the Latin hypercube and of the ranking's bootstrap (28).
     harmonics : int
@@ -132,8 +134,9 @@ class PayoffStudy(StudyParams):
         set_("design_seed", _number("design_seed", self.design_seed, low=0, high=2**32 - 1, integer=True))
         set_("harmonics", _number("harmonics", self.harmonics, low=1, high=50, integer=True))
         set_("bootstrap", _number("bootstrap", self.bootstrap, low=10, high=100_000, integer=True))
-        if self.points <= 2 * self.harmonics:
-            raise ValueError(f"points must exceed 2 × harmonics = {2 * self.harmonics} (rbd_fast), got {self.points}")
+        if self.points < 2 * (2 * self.harmonics + 2):
+            raise ValueError(f"points must be at least 4 × harmonics + 4 = {4 * self.harmonics + 4} (rbd_fast's "
+                             f"bootstrap resamples half of them), got {self.points}")
         set_("period_s", _number("period_s", self.period_s, low=0.0, high=1000.0, low_open=True))
 
 
@@ -322,9 +325,10 @@ def rank_factors(u, y, names=FACTOR_NAMES, harmonics: int = 2, bootstrap: int = 
     if u.ndim != 2 or u.shape[1] != len(names) or len(y) != len(u):
         raise ValueError(f"u must be (N, {len(names)}) and y (N,), got {u.shape} and {y.shape}")
     keep = np.isfinite(y)
-    if keep.sum() < max(MIN_POINTS, 2 * harmonics + 1):
-        raise ValueError(f"rbd_fast with M = {harmonics} needs at least {max(MIN_POINTS, 2 * harmonics + 1)} points "
-                         f"with a response, got {int(keep.sum())}")
+    need = max(MIN_POINTS, 2 * (2 * harmonics + 2))  # half of them, a resample, must exceed 2M + 1
+    if keep.sum() < need:
+        raise ValueError(f"rbd_fast with M = {harmonics} needs at least {need} points with a response (its "
+                         f"bootstrap resamples half of them), got {int(keep.sum())}")
     problem = {"num_vars": len(names), "names": names, "bounds": [[0.0, 1.0]] * len(names)}
     with np.errstate(all="ignore"):
         out = rbd_fast.analyze(problem, u[keep], y[keep], M=int(harmonics), num_resamples=int(bootstrap),
