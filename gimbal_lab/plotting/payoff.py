@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import MaxNLocator
 
 __all__ = ["plot_delta_vs_factors", "plot_ranking", "plot_payoff_map"]
 
@@ -21,7 +22,8 @@ def plot_delta_vs_factors(points, factors, columns=(("delta_best", "Δ best"), (
         One row per point: each factor's value, ``COL_m``, ``COL_low_m``, ``COL_high_m`` for every
         ``COL`` of ``columns``, and ``class`` (colours the first column's points).
     factors : list of dict
-        ``name``, ``label`` (with unit), ``low``, ``high`` of each factor, in panel order.
+        ``name``, ``label`` (with unit), ``low``, ``high`` of each factor, in panel order; ``integer``
+        (optional) puts ticks on whole numbers only.
     columns : sequence of (str, str)
         The responses drawn (column stem, legend label); the first filled, the others hollow.
     fig : matplotlib Figure, optional
@@ -54,6 +56,8 @@ def plot_delta_vs_factors(points, factors, columns=(("delta_best", "Δ best"), (
         ax.set_xlabel(f["label"], fontsize=8)
         ax.set_xlim(f["low"] - 0.05 * (f["high"] - f["low"]), f["high"] + 0.05 * (f["high"] - f["low"]))
         ax.tick_params(labelsize=7)
+        if f.get("integer"):
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     for ax in axes[n:]:
         ax.set_visible(False)
     for ax in axes[::cols]:

@@ -545,9 +545,9 @@ def write_report(folder, results, study: PayoffStudy) -> list[Path]:
 
 
 def factor_axes() -> list[dict]:
-    """Each factor as the plots take it: name, label with unit, low, high."""
-    return [{"name": f.name, "label": f"{f.label}" + (f" ({f.unit})" if f.unit else ""), "low": f.low, "high": f.high}
-            for f in FACTORS]
+    """Each factor as the plots take it: name, label with unit, low, high, integer."""
+    return [{"name": f.name, "label": f"{f.label}" + (f" ({f.unit})" if f.unit else ""), "low": f.low, "high": f.high,
+             "integer": f.integer} for f in FACTORS]
 
 
 def figures(tables: dict) -> list:
