@@ -790,6 +790,10 @@ class Target(_Part):
         None (the default): :data:`CONE_FIELD_FRACTION` of the camera's half horizontal field
         (:meth:`cone_half_angle`). The lens sweep's in-limit cones set 40° (docs/design.md, "When
         does a gimbal pay off?", Repairs).
+    cone_range_m : float or None
+        ``trajectory="cone"`` only: the distance from the home camera to every point of the cone's
+        circle, m, in (0, 100]. None (the default): :data:`CONE_RANGE_M`. The payoff map varies
+        it (docs/design.md, "The payoff map").
     """
 
     kind: str = "sphere"
@@ -800,6 +804,7 @@ class Target(_Part):
     marker_length_m: float = 0.30
     occluders: tuple = ()
     cone_half_angle_rad: float | None = None
+    cone_range_m: float | None = None
 
     _NAME = "target"
 
@@ -831,6 +836,11 @@ class Target(_Part):
             if self.cone_half_angle_rad >= 0.5 * math.pi:
                 raise ValueError(f"target.cone_half_angle_rad must be < π/2 (the cone lies ahead of the camera), got "
                                  f"{self.cone_half_angle_rad!r}")
+        if self.cone_range_m is not None:
+            if self.trajectory != "cone":
+                raise ValueError(f"target.cone_range_m={self.cone_range_m!r} applies to target.trajectory 'cone' only, "
+                                 f"got {self.trajectory!r}")
+            self._number("cone_range_m", low=0.0, high=100.0, low_open=True)
 
     def cone_half_angle(self, field_rad: float) -> float:
         """The cone's half-angle about the home axis, rad: ``cone_half_angle_rad``, or
@@ -848,9 +858,9 @@ class Target(_Part):
         if self.trajectory != "cone":
             return Trajectory(self.trajectory, period_s=self.period_s)
         half_angle = self.cone_half_angle(field_rad)
-        centre = home_camera_m + np.array([CONE_RANGE_M * math.cos(half_angle), 0.0, 0.0])
-        return Trajectory("circular", period_s=self.period_s, centre_m=centre,
-                          radius_m=CONE_RANGE_M * math.sin(half_angle))
+        range_m = CONE_RANGE_M if self.cone_range_m is None else self.cone_range_m
+        centre = home_camera_m + np.array([range_m * math.cos(half_angle), 0.0, 0.0])
+        return Trajectory("circular", period_s=self.period_s, centre_m=centre, radius_m=range_m * math.sin(half_angle))
 
     def scene_kwargs(self) -> dict:
         """What a renderer takes from the target: its kind, sizes and the occluders."""

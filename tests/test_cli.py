@@ -78,7 +78,10 @@ TRACK = ["track", "in.mp4", "--target", "aruco", "--calibration", "cam.yaml", "-
 
 @pytest.mark.parametrize("argv, message", [
     (["run", "paper", "--jobs", "0"], "gimbal-lab run: error: argument --jobs: must be an integer >= 1, got '0'"),
-    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, link, moving-drone, occlusion, paper"),
+    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, link, moving-drone, occlusion, paper, payoff"),
+    (["run", "paper", "--points", "12"], "gimbal-lab run: error: --points sets the payoff map's points; paper has none"),
+    (["run", "payoff", "--points", "9"], "gimbal-lab run: error: points must be >= 12 and <= 100000, got 9"),
+    (["run", "payoff", "--points", "0"], "argument --points: must be an integer >= 1, got '0'"),
     (["run"], "name a study (gimbal-lab run --list shows them)"),
     (["calibrate", "boards", "--square", "nan"], "argument --square: must be a finite length in metres > 0, got 'nan'"),
     (["calibrate", "boards", "--square", "0"], "argument --square: must be a finite length in metres > 0, got '0'"),

@@ -85,6 +85,9 @@ def test_the_defaults_are_the_paper_studys_fixed_parameters():
         (Target, dict(cone_half_angle_rad=0.5), "target.cone_half_angle_rad=0.5 applies to target.trajectory 'cone'"),
         (Target, dict(trajectory="cone", cone_half_angle_rad=0.0), "target.cone_half_angle_rad"),
         (Target, dict(trajectory="cone", cone_half_angle_rad=math.pi / 2), "target.cone_half_angle_rad"),
+        (Target, dict(cone_range_m=2.0), "target.cone_range_m=2.0 applies to target.trajectory 'cone'"),
+        (Target, dict(trajectory="cone", cone_range_m=0.0), "target.cone_range_m"),
+        (Target, dict(trajectory="cone", cone_range_m=101.0), "target.cone_range_m"),
         (Pointing, dict(kind="image"), "pointing.kind"),
         (Pointing, dict(kind="filter", filter="ekf"), "pointing.filter"),
         (Pointing, dict(kind="paper", filter="cv"), "pointing.filter='cv' applies to pointing.kind 'filter' only"),
@@ -475,9 +478,27 @@ _VARIED = [
                    pointing=Pointing("filter", "ca")),
     TrackingConfig(pointing=Pointing("paper", coast_s=1.5),
                    target=Target(trajectory="cone", cone_half_angle_rad=math.radians(40.0))),
+    TrackingConfig(target=Target(trajectory="cone", cone_half_angle_rad=math.radians(12.0), cone_range_m=4.2)),
     TrackingConfig(gimbal=Gimbal(kinematics=GimbalKinematics(0.05, 0.02, ((-1, 1), (-0.5, 0.5), (-2, 1))),
                                  plants=tuple(AxisPlant.storm32(a) for a in ("yaw", "roll", "pitch")))),
 ]
+
+
+def test_the_cone_range_puts_every_point_of_the_path_at_that_distance_from_the_home_camera():
+    # hand geometry: a circle about the home axis at half-angle α and range D lies D from the camera;
+    # the default (None) keeps the lab's CONE_RANGE_M and the store key of configs without it
+    from gimbal_lab.config import CONE_RANGE_M
+
+    home = np.array([0.1, 0.0, 1.955])
+    alpha = math.radians(17.0)
+    for range_m, expected in ((2.6, 2.6), (None, CONE_RANGE_M)):
+        target = Target(trajectory="cone", cone_half_angle_rad=alpha, cone_range_m=range_m)
+        path = target.path(seed=0, duration_s=4.0, home_camera_m=home, field_rad=math.radians(60.0))
+        points = np.array([path.position(t) for t in np.linspace(0.0, 2.0, 9)])
+        assert np.linalg.norm(points - home, axis=1) == pytest.approx(expected, rel=1e-12)
+        off_axis = np.arccos((points[:, 0] - home[0]) / np.linalg.norm(points - home, axis=1))
+        assert off_axis == pytest.approx(alpha, rel=1e-9)
+    assert "cone_range_m" not in Target(trajectory="cone").to_dict()
 
 
 @pytest.mark.parametrize("config", _VARIED, ids=lambda c: c.label)

@@ -291,3 +291,28 @@ def test_saved_figure_paths_show_in_a_notebook_as_plain_paths(tmp_path):
     assert pretty(both) == f"{tmp_path / 'g.png'}\n{tmp_path / 'g.svg'}"
     assert one == tmp_path / "f.png" and isinstance(one, Path) and one.stat().st_size > 0
     assert both == [tmp_path / "g.png", tmp_path / "g.svg"] and all(isinstance(p, Path) for p in both)
+
+
+def test_payoff_map_draws_the_break_even_where_the_surface_changes_sign_and_points_in_mm():
+    import numpy as np
+
+    from gimbal_lab.plotting import payoff as pp
+
+    points = pd.DataFrame({"a": [0.2, 0.8], "b": [0.5, 0.5], "class": ["pays off", "does not"],
+                           "delta_best_m": [-0.002, 0.003], "delta_best_low_m": [-0.004, 0.001],
+                           "delta_best_high_m": [0.0, 0.005]})
+    x = y = np.linspace(0.0, 1.0, 21)
+    X, _ = np.meshgrid(x, y)
+    ax = pp.plot_payoff_map(points, "a", "b", x, y, 0.01 * (X - 0.4))  # zero on the line a = 0.4
+    contour = [c for c in ax.collections if type(c).__name__ in ("QuadContourSet", "ContourSet")
+               or hasattr(c, "get_paths") and "Contour" in type(c).__name__]
+    assert contour, "no break-even drawn"
+    vertices = np.vstack([p.vertices for c in contour for p in c.get_paths() if len(p.vertices)])
+    assert vertices[:, 0] == pytest.approx(np.full(len(vertices), 0.4), abs=1e-9)
+    flat = pp.plot_payoff_map(points, "a", "b", x, y, 0.01 + 0.0 * X)  # one sign: no boundary
+    assert not [c for c in flat.collections if "Contour" in type(c).__name__]
+    fig = pp.plot_delta_vs_factors(points, [{"name": "a", "label": "a", "low": 0.0, "high": 1.0}],
+                                   columns=(("delta_best", "Δ best"),))
+    offsets = fig.axes[0].collections[-1].get_offsets()
+    assert np.asarray(offsets)[:, 1] == pytest.approx([-2.0, 3.0])  # mm
+    plt.close("all")

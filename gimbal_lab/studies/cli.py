@@ -19,6 +19,8 @@ def _add_run_options(p) -> None:
                         "when set, else OUT/store)")
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
+    p.add_argument("--points", type=positive_int, metavar="N",
+                   help="points of the payoff map's Latin hypercube (payoff only; overrides --config)")
     p.add_argument("--jobs", type=positive_int, metavar="N", help="local worker processes (default: every CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://HOST:8786 (needs the [dask] extra)")
@@ -78,6 +80,10 @@ def _run(args, parser) -> int:
             params = module.Study.from_toml(args.config) if args.config else module.Study()
         if args.replicates is not None:
             params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
+        if getattr(args, "points", None) is not None:
+            if "points" not in params.to_dict():
+                raise ValueError(f"--points sets the payoff map's points; {args.study} has none")
+            params = module.Study(**{**params.to_dict(), "points": args.points})
     except (ValueError, TypeError, FileNotFoundError) as exc:
         parser.error(str(exc))
     name = params.name if scenario else args.study
@@ -123,7 +129,7 @@ def _run(args, parser) -> int:
         # pipelines, the moving drone's arms), when it says so
         n_runs = len(getattr(module, "all_configs", module.grid)(params))
         where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or default_jobs()} local processes"
-        print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per cell, {params.revolutions:g} "
+        print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per {'point' if hasattr(params, 'points') else 'cell'}, {params.revolutions:g} "
               f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)
         try:
             report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
