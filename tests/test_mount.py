@@ -35,7 +35,9 @@ def _run(mount, body, seconds, every=5, rate_ref=None, **kwargs):
 
 @pytest.fixture(scope="module")
 def hover_stabilised():
-    return _run("stabilised", BodyMotion.hover(seed=3), 24.0, every=1)
+    # 16 s: 8 s compared between the transient and the wrap-around (measured: the axis ratios
+    # 1.011, total 1.027, correlation 0.9986, as over 24 s: 1.010, 1.028, 0.9986)
+    return _run("stabilised", BodyMotion.hover(seed=3), 16.0, every=1)
 
 
 def test_stabilised_mount_attenuates_sway_as_the_loops_sensitivity_predicts(hover_stabilised):

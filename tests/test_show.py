@@ -5,6 +5,7 @@ the right frame count, nothing half-written survives an interruption, and bad in
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -189,9 +190,12 @@ def test_show_command_writes_a_clip_and_names_bad_arguments(tmp_path):
     toml = tmp_path / "tiny.toml"
     toml.write_text("[paper]\nreplicates = 2\nperiod_s = 0.3\n")  # 2 revolutions of 9 frames
     cmd = [sys.executable, "-m", "gimbal_lab.cli", "show"]
+    # the cell's two runs in the command's own process: a pool of workers would start (import the
+    # lab, open a renderer) for two runs of 18 frames; pools are tested in test_runner.py
+    one_process = {**os.environ, "GIMBAL_LAB_JOBS": "1"}
     # without --out: an H.264 MP4 under results/show/, named after the cell, and the last line says where
     ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", "store"], cwd=tmp_path,
-                        capture_output=True, text=True, timeout=300)
+                        capture_output=True, text=True, timeout=300, env=one_process)
     assert ok.returncode == 0, ok.stderr
     clip = tmp_path / "results" / "show" / "sphere_default_circular_seed1.mp4"
     assert ok.stdout.strip().splitlines()[-1] == (f"wrote results/show/sphere_default_circular_seed1.mp4 "
@@ -199,7 +203,7 @@ def test_show_command_writes_a_clip_and_names_bad_arguments(tmp_path):
     info = probe_video(clip)
     assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", 18)
     ok = subprocess.run(cmd + ["--config", str(toml), "--seed", "1", "--store", str(tmp_path / "store"), "--out",
-                               str(tmp_path / "c.gif")], capture_output=True, text=True, timeout=300)
+                               str(tmp_path / "c.gif")], capture_output=True, text=True, timeout=300, env=one_process)
     assert ok.returncode == 0, ok.stderr
     assert "wrote" in ok.stdout and (tmp_path / "c.gif").stat().st_size > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.gif", "results", "store", "tiny.toml"]

@@ -46,17 +46,24 @@ def test_windowed_antialiasing_leaves_the_paper_grid_unchanged(renderers):
     at all, over 60 frames a cell; the anti-aliasing itself is worth 1.6 mm on the active sphere)."""
     from gimbal_lab.scene import SceneRenderer
 
-    for config in grid(PaperStudy(replicates=2)):
-        if config.seed != 1:
-            continue
-        config = config.replace(revolutions=0.3)
-        windowed = simulate(config, renderer=renderers(config)).frames
-        with SceneRenderer(config.camera.intrinsics, config.camera.lens_model, target=config.target.kind,
-                           antialias="full") as full_aa:
-            full = simulate(config, renderer=full_aa).frames
-        assert windowed["detected"].equals(full["detected"]), config.label
-        np.testing.assert_allclose(windowed["error_m"], full["error_m"], atol=1e-5, rtol=0, err_msg=config.label)
-        np.testing.assert_allclose(windowed["offset_px"], full["offset_px"], atol=1e-3, rtol=0, err_msg=config.label)
+    full_aa = {}  # one fully multisampled renderer per camera and target, as the windowed ones are shared
+    try:
+        for config in grid(PaperStudy(replicates=2)):
+            if config.seed != 1:
+                continue
+            config = config.replace(revolutions=0.3)
+            windowed = simulate(config, renderer=renderers(config)).frames
+            if config.renderer_key not in full_aa:
+                full_aa[config.renderer_key] = SceneRenderer(config.camera.intrinsics, config.camera.lens_model,
+                                                             target=config.target.kind, antialias="full")
+            full = simulate(config, renderer=full_aa[config.renderer_key]).frames
+            assert windowed["detected"].equals(full["detected"]), config.label
+            np.testing.assert_allclose(windowed["error_m"], full["error_m"], atol=1e-5, rtol=0, err_msg=config.label)
+            np.testing.assert_allclose(windowed["offset_px"], full["offset_px"], atol=1e-3, rtol=0,
+                                       err_msg=config.label)
+    finally:
+        for renderer in full_aa.values():
+            renderer.close()
 
 
 def test_windowed_background_leaves_blurred_runs_unchanged():

@@ -111,8 +111,10 @@ def test_hypotheses_and_break_even_on_known_differences():
 
 def test_a_tiny_study_runs_end_to_end(tmp_path):
     """Two replicates of the sphere, in-process and the 5 Hz link: every file of the report, the
-    replicate table's links and the known pose's age (0 in-process, up to a status period at 5 Hz)."""
-    study = link.LinkStudy(replicates=2, targets=["sphere"], only=[link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss"])
+    replicate table's links and the known pose's age (0 in-process, up to a status period at 5 Hz).
+    Revolutions of 0.6 s (18 frames): the measured one still spans three 5 Hz status periods."""
+    study = link.LinkStudy(replicates=2, period_s=0.6, targets=["sphere"],
+                           only=[link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss"])
     out = link.run_study(study, tmp_path, jobs=1, progress=False)
     folder = out["folder"]
     for name in ("claims.md", "verdicts.csv", "replicates.csv", "summary.csv", "study.json",
