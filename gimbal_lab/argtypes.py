@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "nonnegative_int", "length_m"]
+__all__ = ["positive_int", "nonnegative_int", "int_at_least", "length_m"]
 
 
 def _int_at_least(text: str, low: int) -> int:
@@ -30,6 +30,16 @@ def positive_int(text: str) -> int:
 def nonnegative_int(text: str) -> int:
     """argparse type: an integer >= 0."""
     return _int_at_least(text, 0)
+
+
+def int_at_least(low: int):
+    """argparse type: an integer >= ``low`` (its message names ``low``, not 1)."""
+
+    def parse(text: str) -> int:
+        return _int_at_least(text, low)
+
+    parse.__name__ = f"int_at_least_{low}"
+    return parse
 
 
 def length_m(text: str) -> float:

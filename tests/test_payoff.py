@@ -86,6 +86,15 @@ def test_the_study_refuses_bad_sizes_naming_the_field():
         po.PayoffStudy(points=12, harmonics=3)
 
 
+def test_the_command_line_refuses_the_same_points_as_the_study():
+    """``--points`` checks its bound while the parser is built, without importing the study; the
+    bound it names must be the study's own."""
+    from gimbal_lab.studies.cli import PAYOFF_MIN_POINTS
+
+    assert PAYOFF_MIN_POINTS == po.MIN_POINTS
+    po.PayoffStudy(points=PAYOFF_MIN_POINTS)  # accepted
+
+
 # ----------------------------------------------------------------------------------------------
 # responses
 # ----------------------------------------------------------------------------------------------

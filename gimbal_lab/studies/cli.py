@@ -6,8 +6,13 @@ import logging
 import os
 from pathlib import Path
 
-from ..argtypes import positive_int
+from ..argtypes import int_at_least, positive_int
 from . import STUDIES, load
+
+
+# The payoff map's smallest Latin hypercube, the same number as studies.payoff.MIN_POINTS (a test
+# checks); written here so that building the parser does not import the study and its numerics.
+PAYOFF_MIN_POINTS = 12
 
 
 def _add_run_options(p) -> None:
@@ -19,8 +24,9 @@ def _add_run_options(p) -> None:
                         "when set, else OUT/store)")
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
-    p.add_argument("--points", type=positive_int, metavar="N",
-                   help="points of the payoff map's Latin hypercube (payoff only; overrides --config)")
+    p.add_argument("--points", type=int_at_least(PAYOFF_MIN_POINTS), metavar="N",
+                   help=f"points of the payoff map's Latin hypercube, >= {PAYOFF_MIN_POINTS} (payoff only; overrides "
+                        "--config)")
     p.add_argument("--jobs", type=positive_int, metavar="N", help="local worker processes (default: every CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://HOST:8786 (needs the [dask] extra)")
