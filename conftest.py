@@ -18,12 +18,18 @@
 * **Time budget.** The wall time of each test file and notebook is summed and, at the end,
   compared with ``benchmarks/suite_budget.toml``; a file over its budget is named (a note, never a
   failure: speed is measured, not asserted). ``--time-budget`` prints every file's time.
+* **Ctrl-C reaches the commands under test.** A shell starts a background job (``pytest &`` in a
+  script) with SIGINT ignored, and a child process inherits an ignored signal across ``exec``: the
+  tests that press Ctrl-C on a command would then wait for an exit that never comes. Each process
+  of the run (the controller and every xdist worker) catches SIGINT again, so the commands it starts
+  get the default disposition.
 """
 
 import fnmatch
 import os
 import resource
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -92,6 +98,8 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     global _made_store
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # see "Ctrl-C reaches the commands under test"
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     worker = getattr(config, "workerinput", None)
     if worker is None:  # this process collects and reports; xdist's workers start later and inherit os.environ
         if not os.environ.get(TEST_STORE_ENV, "").strip():
