@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import warnings
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -61,6 +61,7 @@ __all__ = [
     "equivalent",
     "non_inferior",
     "inside_band",
+    "against_every",
     "mean_interval",
     "verdict_table",
     "holm",
@@ -474,6 +475,49 @@ def inside_band(values, band_low: float, band_high: float, confidence: float = 0
     else:
         verdict, p = INCONCLUSIVE, _smallest_p(p_inside, p_above, p_below)
     return Verdict(verdict, "inside", mean, math.nan, mean, low, high, math.nan, int(x.size), confidence, p)
+
+
+def against_every(verdicts, alpha: float = FAMILY_ALPHA) -> tuple[int, Verdict]:
+    """Intersection–union verdict on "A < every B_j" from the k verdicts of "A < B_j"
+    (:func:`less_than`, one per B_j; docs/design.md, the moving drone's SP1 and SP2).
+
+    * **holds** when every comparison holds; p-value: the largest of theirs (the claim is the
+      intersection, so it is rejected at the level of its weakest part, with no correction);
+    * **does not hold** when some comparison does not hold at the Bonferroni level, k × p <
+      ``alpha``; p-value: k × the smallest such p, capped at 1 (k chances to fail);
+    * **inconclusive** otherwise.
+
+    Returns
+    -------
+    (int, Verdict)
+        The index of the comparison that decides (holds: the one with the largest p; does not
+        hold: the smallest p; inconclusive: among those that do not hold, the one whose interval
+        reaches highest, a NaN interval first) and its Verdict with the combined ``verdict`` and
+        ``p_value`` (its interval, δ and means unchanged).
+
+    Examples
+    --------
+    >>> a = [1.0, 1.1, 0.9]
+    >>> j, v = against_every([less_than(a, [2.0, 2.1, 1.9]), less_than(a, [1.0, 1.12, 0.88])])
+    >>> j, v.verdict
+    (1, 'does not hold')
+    """
+    vs = list(verdicts)
+    if not vs or not all(isinstance(v, Verdict) for v in vs):
+        raise ValueError("against_every needs one or more Verdicts")
+    k = len(vs)
+    if all(v.verdict == HOLDS for v in vs):
+        j = max(range(k), key=lambda i: vs[i].p_value)
+        return j, vs[j]
+    scaled = [min(1.0, k * v.p_value) if math.isfinite(v.p_value) else math.nan for v in vs]
+    failing = [i for i in range(k) if vs[i].verdict == DOES_NOT_HOLD and scaled[i] < alpha]
+    if failing:
+        j = min(failing, key=lambda i: scaled[i])
+        return j, replace(vs[j], p_value=scaled[j])
+    open_ = [i for i in range(k) if vs[i].verdict != HOLDS]
+    j = max(open_, key=lambda i: vs[i].high if math.isfinite(vs[i].high) else math.inf)
+    p = scaled[j] if vs[j].verdict == DOES_NOT_HOLD else vs[j].p_value
+    return j, replace(vs[j], verdict=INCONCLUSIVE, p_value=p)
 
 
 def verdict_table(rows) -> pd.DataFrame:

@@ -315,15 +315,18 @@ def test_report_writes_tables_verdicts_figures_and_metadata(tmp_path):
     written = md.write_report(tmp_path, results, study)
     names = sorted(p.relative_to(tmp_path).as_posix() for p in written)
     for name in ("summary.csv", "replicates.parquet", "replicates.csv", "verdicts.csv", "claims.md", "study.json",
-                 "pipelines.csv", "gains.csv", "gain_summary.csv", "figures/gains.png",
+                 "pipelines.csv", "every_pipeline.csv", "gains.csv", "gain_summary.csv", "figures/gains.png",
                  "figures/mount_bars.png", "figures/example_frames_sphere.svg", "figures/hypotheses_forest.png"):
         assert name in names and (tmp_path / name).stat().st_size > 0
     meta = json.loads((tmp_path / "study.json").read_text())
     assert meta["study"] == "moving-drone" and meta["runs"] == 20 and meta["parameters"] == study.to_dict()
     verdicts = pd.read_csv(tmp_path / "verdicts.csv")
-    # BP1, BP2 per shutter; D1, D2; H1, H3, H4 (no flight: no H2)
+    # BP1, BP2, SP1, SP2 per shutter; D1, D2; H1, H3, H4 (no flight: no H2)
     assert verdicts["id"].value_counts().sort_index().to_dict() == {"BP1": 2, "BP2": 2, "D1": 1, "D2": 1, "H1": 4,
-                                                                    "H3": 4, "H4": 2}
+                                                                    "H3": 4, "H4": 2, "SP1": 2, "SP2": 2}
+    every = pd.read_csv(tmp_path / "every_pipeline.csv")
+    assert sorted(set(every["pipeline"])) == sorted(("active (paper)", "active (best)") + md.PASSIVE_PIPELINES["sphere"])
+    assert len(every) == 2 * 2 * 6  # shutters × seeds × pipelines
     assert {"p_value", "p_holm", "verdict_holm"} <= set(verdicts.columns)
     replicates = pd.read_parquet(tmp_path / "replicates.parquet")
     assert len(replicates) == 20 and replicates["arm"].value_counts().to_dict() == {"full": 12, "sharp": 4, "static": 4}
@@ -381,10 +384,17 @@ def test_pipeline_and_gain_columns_on_hand_built_runs():
     assert table.loc["stabilised", "bp_best_abs_error_m"] == pytest.approx(0.02, rel=1e-12)
     pipes = md.pipeline_table(table.reset_index()).set_index("pipeline")["abs_error_m"]
     assert pipes.to_dict() == pytest.approx({"active (paper)": 0.06, "active (best)": 0.01, "best passive": 0.02})
+    # SP frames: every mount's own and exact estimators detected: 0, 1, 2 (the fixed mount detects all)
+    assert table["sp_rate"].to_numpy() == pytest.approx([0.5, 0.5, 0.5], rel=1e-12)
+    every = md.every_pipeline_table(table.reset_index()).set_index("pipeline")["abs_error_m"]
+    assert every.to_dict() == pytest.approx({"active (paper)": 0.06, "active (best)": 0.01,
+                                             "fixed (paper)": 0.2, "stabilised (paper)": 0.04,
+                                             "fixed (best)": 0.2, "stabilised (best)": 0.02}, rel=1e-12)
     gains = md.gain_table(table.reset_index())
     assert len(gains) == 1 and gains.iloc[0]["G_m"] == pytest.approx(0.0125, rel=1e-12)
     # the acquisition revolution (1 m, all detected) never counts
-    columns = ["pair_abs_error_m", "bp_paper_abs_error_m", "bp_best_abs_error_m"]
+    columns = ["pair_abs_error_m", "bp_paper_abs_error_m", "bp_best_abs_error_m", "sp_paper_abs_error_m",
+               "sp_best_abs_error_m"]
     assert (table.loc[["stabilised", "active"], columns] < 0.1).all().all()
 
 
@@ -398,6 +408,11 @@ def designed_arm_replicates(g_full=0.030, g_sharp=0.010, g_static=0.005):
     df["bp_paper_abs_error_m"] = np.where(df["mount"] == "active", 0.050, np.nan)
     df["bp_best_abs_error_m"] = np.where(df["mount"] == "active", 0.004, 0.020)
     df["bp_rate"] = 0.9
+    # SP: every passive pipeline well above both active ones (sphere: fixed and stabilised, own and exact)
+    df["sp_paper_abs_error_m"] = df["mount"].map({"fixed": 0.100, "stabilised": 0.060, "active": 0.050})
+    df["sp_best_abs_error_m"] = df["mount"].map({"fixed": 0.090, "stabilised": 0.020, "active": 0.004})
+    df[["sp_paper_abs_error_m", "sp_best_abs_error_m"]] += np.tile(JITTER, len(df) // 6)[:, None]
+    df["sp_rate"] = 0.8
     rows = []
     for arm in ("sharp", "static"):
         for target, motion, mount in itertools.product(md.TARGETS, md.MOTIONS, ("stabilised", "active")):
@@ -411,7 +426,8 @@ def designed_arm_replicates(g_full=0.030, g_sharp=0.010, g_static=0.005):
 def test_bp_and_decomposition_claims_on_designed_replicates():
     v = md.check_hypotheses(designed_arm_replicates())
     counts = v["id"].value_counts().to_dict()
-    assert counts == {"H1": 24, "H2": 4, "H3": 24, "H4": 12, "BP1": 12, "BP2": 12, "D1": 6, "D2": 6}
+    assert counts == {"H1": 24, "H2": 4, "H3": 24, "H4": 12, "BP1": 12, "BP2": 12, "D1": 6, "D2": 6, "SP1": 12,
+                      "SP2": 12}
     by = {cid: v[v["id"] == cid] for cid in ("BP1", "BP2", "D1", "D2")}
     # the paper's loop (50 mm) loses to the best passive pipeline (20 mm); the best active (4 mm) wins
     assert (by["BP1"]["verdict"] == stats.DOES_NOT_HOLD).all() and (by["BP2"]["verdict"] == stats.HOLDS).all()
@@ -419,7 +435,7 @@ def test_bp_and_decomposition_claims_on_designed_replicates():
     # G_sharp 10 mm and G_static 5 mm below G_full 30 mm
     assert (by["D1"]["verdict"] == stats.HOLDS).all() and (by["D2"]["verdict"] == stats.HOLDS).all()
     assert by["D1"]["difference"].to_numpy() == pytest.approx(-0.020, abs=1e-9)
-    assert (v["verdict_holm"] == v["verdict"]).all()  # wide effects stay decisive in a family of 100
+    assert (v["verdict_holm"] == v["verdict"]).all()  # wide effects stay decisive in a family of 124
     # when the sharp arm's gain exceeds the full one, D1 does not hold; D2 is untouched
     v = md.check_hypotheses(designed_arm_replicates(g_sharp=0.050))
     assert (v[v["id"] == "D1"]["verdict"] == stats.DOES_NOT_HOLD).all()
@@ -435,7 +451,71 @@ def test_verdict_lines_render_p_and_holm_when_present():
     lines = _params.verdict_lines(v, md.verdict_reason)
     head = lines[0]
     assert "| p |" in head and head.endswith("| verdict | p (Holm) | verdict (Holm) |")
-    assert any(line.startswith("Of 100 conditions, at 95 % each:") and "At the family level (Holm" in line
+    assert any(line.startswith("Of 124 conditions, at 95 % each:") and "At the family level (Holm" in line
                for line in lines)
     plain = _params.verdict_lines(v.drop(columns=["p_holm", "verdict_holm"]), md.verdict_reason)
     assert plain[0].endswith("| p | verdict |") and "family level" not in "\n".join(plain)
+
+
+# ----------------------------------------------------------------------------------------------
+# SP1, SP2: active against every passive pipeline (an intersection-union test)
+# ----------------------------------------------------------------------------------------------
+def test_sp_holds_only_against_every_passive_pipeline_and_names_the_one_that_decides():
+    df = designed_arm_replicates()
+    v = md.check_hypotheses(df)
+    sp = {cid: v[v["id"] == cid] for cid in ("SP1", "SP2")}
+    sphere = sp["SP1"]["condition"].str.startswith("sphere")
+    # sphere: the paper's loop (50 mm) beats the fixed camera (90-100 mm) but not the stabilised
+    # camera's exact fit (20 mm): SP1 does not hold, decided by that pipeline; BP1 says the same
+    assert (sp["SP1"].loc[sphere, "verdict"] == stats.DOES_NOT_HOLD).all()
+    assert set(sp["SP1"].loc[sphere, "b"]) == {"stabilised (best)"}
+    # the marker has two passive pipelines (its exact estimator is its own PnP), 100 and 60 mm: SP1
+    # holds against both
+    assert (sp["SP1"].loc[~sphere, "verdict"] == stats.HOLDS).all()
+    assert set(sp["SP1"].loc[~sphere, "b"]) <= set(md.PASSIVE_PIPELINES["aruco"])
+    assert set(sp["SP1"]["passive_pipelines"]) == {2, 4}
+    # the best active camera (4 mm) beats all four: SP2 holds, with the largest p of the four
+    assert (sp["SP2"]["verdict"] == stats.HOLDS).all()
+    # where the weak "best passive" of BP hides a strong pipeline, SP does not: make the stabilised
+    # camera's exact fit bad (300 mm, as blur does) and its circle method as good as active (paper)
+    bad = df.copy()
+    stab = (bad["mount"] == "stabilised") & (bad["arm"] == "full")
+    bad.loc[stab, "sp_best_abs_error_m"] = 0.300
+    bad.loc[stab, "bp_best_abs_error_m"] = 0.300
+    bad.loc[stab, "sp_paper_abs_error_m"] = bad.loc[(bad["mount"] == "active") & (bad["arm"] == "full"),
+                                                   "sp_paper_abs_error_m"].to_numpy()
+    v = md.check_hypotheses(bad)
+    bp1, sp1 = v[v["id"] == "BP1"], v[v["id"] == "SP1"]
+    bp1, sp1 = bp1[bp1["condition"].str.startswith("sphere")], sp1[sp1["condition"].str.startswith("sphere")]
+    assert (bp1["verdict"] == stats.HOLDS).all()  # against the weak baseline
+    assert (sp1["verdict"] == stats.DOES_NOT_HOLD).all() and set(sp1["b"]) == {"stabilised (paper)"}
+    assert sp1["difference"].to_numpy() == pytest.approx(0.0, abs=1e-12)
+    assert all("decided against stabilised (paper)" in md.verdict_reason(r) for r in sp1.itertuples())
+
+
+def test_against_every_is_an_intersection_union_test_with_a_bonferroni_failure():
+    a = np.array([1.0, 1.1, 0.9, 1.05])
+    far, near = stats.less_than(a, a + 1.0 + [0, 0.1, -0.1, 0.05]), stats.less_than(a, a + 0.5 + [0, 0.1, -0.1, 0])
+    # every comparison holds: holds, the largest p, that comparison's numbers
+    j, v = stats.against_every([far, near])
+    assert v.verdict == stats.HOLDS and j == int(np.argmax([far.p_value, near.p_value]))
+    assert v.p_value == max(far.p_value, near.p_value)
+    # one comparison inconclusive: the whole claim is, whichever holds
+    noisy = stats.less_than(a, a + [0.5, -0.5, 0.6, -0.4])
+    assert noisy.verdict == stats.INCONCLUSIVE
+    j, v = stats.against_every([far, noisy, near])
+    assert (j, v.verdict) == (1, stats.INCONCLUSIVE)
+    # one comparison does not hold (A exceeds B): does not hold, p scaled by k
+    worse = stats.less_than(a + 0.5 + [0, 0.01, -0.01, 0], a)
+    j, v = stats.against_every([far, worse, near])
+    assert (j, v.verdict) == (1, stats.DOES_NOT_HOLD) and v.p_value == pytest.approx(3 * worse.p_value, rel=1e-12)
+    assert v.difference == worse.difference and v.low == worse.low  # the deciding comparison's numbers
+    # a "does not hold" decisive at 95 % but not at 0.05 / k stays inconclusive
+    b = a + [0.3, 0.1, 0.25, 0.15]  # p = 0.022: decisive at 95 %, not at 0.05 / 4
+    edge = stats.less_than(b, a)
+    assert edge.verdict == stats.DOES_NOT_HOLD and 0.05 / 4 < edge.p_value < 0.05, edge
+    j, v = stats.against_every([far, far, far, edge])
+    assert (j, v.verdict) == (3, stats.INCONCLUSIVE) and v.p_value == pytest.approx(4 * edge.p_value, rel=1e-12)
+    assert stats.against_every([edge])[1].verdict == stats.DOES_NOT_HOLD  # alone it decides
+    with pytest.raises(ValueError, match="one or more"):
+        stats.against_every([])

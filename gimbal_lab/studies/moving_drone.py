@@ -32,8 +32,13 @@ draws: **sharp** (exposure 0) and **static** (the target held still at the circl
 1/60 s exposure). With G = stabilised − active error (exact estimator, frames both mounts
 detected) per replicate (:func:`gain_table`): **D1** "G_sharp < G_full", **D2** "G_static <
 G_full", and the shares G_full − G_sharp, G_sharp, G_static with intervals
-(:func:`gain_summary`). Every verdict is also given at the family level: Holm's correction over
-the report's whole table (:func:`gimbal_lab.stats.holm`).
+(:func:`gain_summary`). Against every passive pipeline at once (the decision recorded after the
+first full run: under blur the exact estimator is not the strongest passive one): **SP1** "active
+(paper) < every passive pipeline" and **SP2** "active (best) < every passive pipeline", the fixed
+and stabilised mounts each with its own and (sphere) its exact estimator, an intersection–union
+test (:func:`every_pipeline_table`, :func:`gimbal_lab.stats.against_every`). Every verdict is
+also given at the family level: Holm's correction over the report's whole table
+(:func:`gimbal_lab.stats.holm`).
 """
 
 from __future__ import annotations
@@ -69,6 +74,8 @@ __all__ = [
     "arm_of",
     "PIPELINES",
     "pipeline_table",
+    "every_pipeline_table",
+    "PASSIVE_PIPELINES",
     "gain_table",
     "gain_summary",
     "replicate_table",
@@ -94,6 +101,11 @@ ARMS = ("full", "sharp", "static")
 
 #: The pipelines compared by BP1 and BP2 (docs/design.md, "Pipelines compared").
 PIPELINES = ("active (paper)", "active (best)", "best passive")
+#: The passive pipelines SP1 and SP2 compare with (docs/design.md, "When does a gimbal pay off?",
+#: the decision on the moving drone): each passive mount with its own and, for the sphere, its exact
+#: estimator (the marker's exact estimator is its own PnP).
+PASSIVE_PIPELINES = {"sphere": ("fixed (paper)", "stabilised (paper)", "fixed (best)", "stabilised (best)"),
+                     "aruco": ("fixed (paper)", "stabilised (paper)")}
 
 #: Absolute floor of δ for blur streaks: a difference under a pixel is no difference in blur.
 STREAK_FLOOR_PX = 1.0
@@ -264,6 +276,9 @@ def replicate_table(results) -> pd.DataFrame:
                 if all(exact.get(m) is not None for m in ("stabilised", "active")) else None)
         # BP's frames: the active mount's own and exact estimators and the stabilised mount's exact one
         bp = (pair & measured[id(by_mount["active"])]["detected"].to_numpy(bool)) if pair is not None else None
+        # SP's frames: every mount's own and exact estimators
+        sp = (np.logical_and.reduce([common] + [exact[m][0] for m in MOUNTS])
+              if all(exact.get(m) is not None for m in MOUNTS) else None)
         for r in members:
             c, f = r.config, measured[id(r)]
             detected = f["detected"].to_numpy()
@@ -280,7 +295,7 @@ def replicate_table(results) -> pd.DataFrame:
                 "mean_true_offset_px": _mean(f["true_offset_px"]),
                 "time_to_centre_s": (_time_to_centre(acquiring, CENTRED_FRACTION * c.camera.width)
                                      if c.pointing.active else math.nan),
-                **_pipeline_columns(f, exact.get(c.pointing.mount), pair, bp),
+                **_pipeline_columns(f, exact.get(c.pointing.mount), pair, bp, sp),
             })
     order = {name: i for i, name in enumerate(ARMS + TARGETS + MOTIONS + MOUNTS + SHUTTERS)}
     table = pd.DataFrame(rows)
@@ -290,18 +305,26 @@ def replicate_table(results) -> pd.DataFrame:
                              key=lambda s: s.map(order) if s.name != "seed" else s, ignore_index=True)
 
 
-def _pipeline_columns(f: pd.DataFrame, exact, pair, bp) -> dict:
+def _pipeline_columns(f: pd.DataFrame, exact, pair, bp, sp=None) -> dict:
     """A run's errors on the frames the pipelines compare (NaN where they do not apply):
     ``pair_abs_error_m`` (exact estimator, frames the stabilised and active mounts' exact
     estimators both detected: the gain), ``bp_rate``, ``bp_paper_abs_error_m`` (own estimator)
-    and ``bp_best_abs_error_m`` (exact estimator) on BP's frames (:func:`pipeline_table`)."""
+    and ``bp_best_abs_error_m`` (exact estimator) on BP's frames (:func:`pipeline_table`), and
+    ``sp_rate``, ``sp_paper_abs_error_m``, ``sp_best_abs_error_m`` on SP's frames, where every
+    mount's own and exact estimators detected (:func:`every_pipeline_table`)."""
     nan = dict(pair_rate=math.nan, pair_abs_error_m=math.nan, bp_rate=math.nan, bp_paper_abs_error_m=math.nan,
-               bp_best_abs_error_m=math.nan)
-    if exact is None or pair is None:
+               bp_best_abs_error_m=math.nan, sp_rate=math.nan, sp_paper_abs_error_m=math.nan,
+               sp_best_abs_error_m=math.nan)
+    if exact is None:
         return nan
     own = f["abs_error_m"].to_numpy(float)
-    return dict(pair_rate=_mean(pair), pair_abs_error_m=_mean(exact[1][pair]), bp_rate=_mean(bp),
-                bp_paper_abs_error_m=_mean(own[bp]), bp_best_abs_error_m=_mean(exact[1][bp]))
+    out = dict(nan)
+    if pair is not None:
+        out.update(pair_rate=_mean(pair), pair_abs_error_m=_mean(exact[1][pair]), bp_rate=_mean(bp),
+                   bp_paper_abs_error_m=_mean(own[bp]), bp_best_abs_error_m=_mean(exact[1][bp]))
+    if sp is not None:
+        out.update(sp_rate=_mean(sp), sp_paper_abs_error_m=_mean(own[sp]), sp_best_abs_error_m=_mean(exact[1][sp]))
+    return out
 
 
 def pipeline_table(replicates: pd.DataFrame) -> pd.DataFrame:
@@ -329,6 +352,36 @@ def pipeline_table(replicates: pd.DataFrame) -> pd.DataFrame:
         for p in PIPELINES:
             rows.append(dict(target=t, motion=m, shutter=s, pipeline=p, seed=seed,
                              rate=float(mounts.loc["active", "bp_rate"]), abs_error_m=float(values[p])))
+    return pd.DataFrame(rows)
+
+
+def every_pipeline_table(replicates: pd.DataFrame) -> pd.DataFrame:
+    """Every pipeline SP1 and SP2 compare, per target, motion, shutter and replicate, on SP's frames
+    (the measured frames where every mount's own and exact estimators detected; ``sp_*`` columns of
+    :func:`replicate_table`): active (paper), active (best) and the target's
+    :data:`PASSIVE_PIPELINES` ("fixed (paper)": the fixed mount's own estimator, "fixed (best)":
+    its exact one; the same for the stabilised mount).
+
+    Returns
+    -------
+    DataFrame
+        target, motion, shutter, pipeline, seed, rate (of those frames) and abs_error_m (m); empty
+        when the table has no ``sp_*`` columns.
+    """
+    r = replicates[replicates["arm"] == "full"] if "arm" in replicates else replicates
+    rows = []
+    if "sp_paper_abs_error_m" not in r:
+        return pd.DataFrame(rows, columns=["target", "motion", "shutter", "pipeline", "seed", "rate", "abs_error_m"])
+    for (t, m, s, seed), g in r.groupby(["target", "motion", "shutter", "seed"], sort=False):
+        mounts = g.set_index("mount")
+        if not set(MOUNTS) <= set(mounts.index):
+            continue
+        pipelines = ("active (paper)", "active (best)") + PASSIVE_PIPELINES[t]
+        for p in pipelines:
+            mount, estimator = p.split(" (")
+            column = "sp_paper_abs_error_m" if estimator == "paper)" else "sp_best_abs_error_m"
+            rows.append(dict(target=t, motion=m, shutter=s, pipeline=p, seed=seed,
+                             rate=float(mounts.loc["active", "sp_rate"]), abs_error_m=float(mounts.loc[mount, column])))
     return pd.DataFrame(rows)
 
 
@@ -433,7 +486,10 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
     (:func:`replicate_table` of real runs), BP1 "active (paper) < best passive" and BP2 "active
     (best) < best passive" per target × motion × shutter (:func:`pipeline_table`); where it has
     the sharp or static arm, D1 "G_sharp < G_full" and D2 "G_static < G_full" per target × motion
-    (:func:`gain_table`). Errors in m. A target–motion cell the table does not hold (a smaller
+    (:func:`gain_table`); where it has SP's columns, SP1 "active (paper) < every passive pipeline"
+    and SP2 "active (best) < every passive pipeline" per target × motion × shutter
+    (:func:`every_pipeline_table`, :func:`gimbal_lab.stats.against_every`; ``b`` names the passive
+    pipeline that decides, ``passive_pipelines`` counts them). Errors in m. A target–motion cell the table does not hold (a smaller
     run of the grid, such as notebook 09's test size) is left out; a cell it holds must have
     every mount and shutter.
 
@@ -489,6 +545,16 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
             for cid, active in (("BP1", "active (paper)"), ("BP2", "active (best)")):
                 add(cid, f"{active} error < best passive error", f"{t}, {m}, {s}", active, "best passive",
                     value[active], value["best passive"])
+    every = every_pipeline_table(replicates)
+    for (t, m, s), g in (every.groupby(["target", "motion", "shutter"], sort=False) if len(every) else ()):
+        value = {p: g[g["pipeline"] == p].set_index("seed")["abs_error_m"].sort_index() for p in set(g["pipeline"])}
+        passive = PASSIVE_PIPELINES[t]
+        for cid, active in (("SP1", "active (paper)"), ("SP2", "active (best)")):
+            pairs = [value[active].align(value[p], join="outer") for p in passive]
+            j, result = stats.against_every([stats.less_than(x.to_numpy(), y.to_numpy(), drop_missing=True)
+                                             for x, y in pairs])
+            rows.append(dict(id=cid, statement=f"{active} error < every passive pipeline's", condition=f"{t}, {m}, {s}",
+                             a=active, b=passive[j], unit="m", passive_pipelines=len(passive), result=result))
     gains = gain_table(replicates)
     for t, m in cells:
         g = _gains_of(gains, t, m)
@@ -502,8 +568,19 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
 
 
 def verdict_reason(row) -> str:
-    """One sentence of measured reason for a verdict (empty for a hypothesis that holds)."""
-    return _params.verdict_reason(row, "have frames where every mount detected the target")
+    """One sentence of measured reason for a verdict (empty for a hypothesis that holds). SP1 and
+    SP2 name the passive pipeline that decides them; an SP comparison that does not hold at 95 %
+    but not at the Bonferroni level over the passive pipelines says so."""
+    reason = _params.verdict_reason(row, "have frames where every mount detected the target")
+    if str(row.id).startswith("SP") and reason:
+        k = int(row.passive_pipelines)
+        bonferroni_only = (row.verdict == stats.INCONCLUSIVE and math.isfinite(row.low)
+                           and (row.low > 0 or (-row.delta < row.low and row.high < row.delta)))
+        if bonferroni_only:
+            reason = (f"against {row.b} it does not hold at 95 % but not at the Bonferroni level over the {k} "
+                      f"passive pipelines ({k} × p = {_params.format_p(row.p_value)})")
+        return f"decided against {row.b} of {k} passive pipelines: {reason}"
+    return reason
 
 
 def _mm_interval(mean: float, low: float, high: float) -> str:
@@ -514,11 +591,12 @@ def _mm_interval(mean: float, low: float, high: float) -> str:
 
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
                         study: MovingDroneStudy | None = None, pipelines: pd.DataFrame | None = None,
-                        gains: pd.DataFrame | None = None) -> str:
+                        gains: pd.DataFrame | None = None, every: pd.DataFrame | None = None) -> str:
     """claims.md of the study: the setting, every condition's verdict with its interval, δ, p and
     Holm p at both levels, a per-hypothesis count, a measured reason for each condition that
-    does not hold, and with ``pipelines`` (:func:`pipeline_table`) and ``gains``
-    (:func:`gain_summary`) each pipeline's error and the gain's shares with their intervals."""
+    does not hold, and with ``pipelines`` (:func:`pipeline_table`), ``every``
+    (:func:`every_pipeline_table`) and ``gains`` (:func:`gain_summary`) each pipeline's error and
+    the gain's shares with their intervals."""
     study = study or MovingDroneStudy()
     n = int(verdicts["n"].max()) if len(verdicts) else 0
     lines = [
@@ -538,7 +616,11 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         "detected. The gain G = stabilised − active error (exact estimator, frames both mounts detected) is "
         "decomposed with two arms (global shutter, the same draws): **sharp** (exposure 0) and **static** (the "
         "target held still at the circle's centre); D1 \u201cG_sharp < G_full\u201d, D2 \u201cG_static < "
-        "G_full\u201d. Every verdict is given at 95 % and after Holm's step-down correction over all the verdicts "
+        "G_full\u201d. SP1 and SP2 compare active (paper) and active (best) with every passive pipeline at once "
+        "(the fixed and the stabilised mount, each with its own and, for the sphere, its exact estimator), on the "
+        "frames all of them detected: a claim holds when it holds against each passive pipeline, does not hold when "
+        "it does not hold against one at the Bonferroni level over them, and names the one that decides it. "
+        "Every verdict is given at 95 % and after Holm's step-down correction over all the verdicts "
         "below (5 % family-wise error).",
         "",
         _params.verdict_rule(f"max(floor, 10 % of the smaller mean), floor 1 mm for errors and {STREAK_FLOOR_PX:g} px "
@@ -558,6 +640,17 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
                   "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
                   "|---|---|---|---|---|---|---|"]
         for (t, m, s, p), g in pipelines.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
+            values = g["abs_error_m"].dropna().to_numpy()
+            mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
+            lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
+                         f"{g['rate'].mean():.2f} |")
+    if every is not None and len(every):
+        lines += ["", "## Every pipeline's error (SP's frames: every mount's estimators detected)", "",
+                  "Mean over replicates of each replicate's mean |d_est − d_true|, with its 95 % interval; "
+                  "(paper): the mount's own estimator, (best): the exact one.", "",
+                  "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
+                  "|---|---|---|---|---|---|---|"]
+        for (t, m, s, p), g in every.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
             values = g["abs_error_m"].dropna().to_numpy()
             mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
             lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
@@ -603,7 +696,8 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
 
     ``results``: the grid's runs and, when run, the arms' (:func:`arm_grid`). Files:
     ``summary.csv``, ``replicates.parquet`` and ``.csv`` (every run, with its ``arm``),
-    ``pipelines.csv``, ``gains.csv`` (per replicate) and ``gain_summary.csv``, ``verdicts.csv``,
+    ``pipelines.csv``, ``every_pipeline.csv`` (SP's pipelines), ``gains.csv`` (per replicate) and
+    ``gain_summary.csv``, ``verdicts.csv``,
     ``claims.md``, ``study.json`` and ``figures/`` (bars of error, detection rate and streak; the
     example frames of each target; the three gains per motion and target when the arms ran; the
     forest plot of the verdicts), PNG and SVG.
@@ -616,6 +710,7 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     summary = summary_table(replicates)
     verdicts = check_hypotheses(replicates)
     pipelines = pipeline_table(replicates)
+    every = every_pipeline_table(replicates)
     gains = gain_table(replicates)
     shares = gain_summary(gains)
     written = _params.write_report_files(folder, (
@@ -623,10 +718,11 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
         ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
         ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
         ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
+        ("every_pipeline.csv", lambda p: every.to_csv(p, index=False)),
         ("gains.csv", lambda p: gains.to_csv(p, index=False)),
         ("gain_summary.csv", lambda p: shares.to_csv(p, index=False)),
         ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, shares))),
+        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, shares, every))),
     ), NAME, study, len(results))
 
     def save(fig, name):
