@@ -589,6 +589,21 @@ def _mm_interval(mean: float, low: float, high: float) -> str:
     return f"{f(mean)} [{f(low)}, {f(high)}]"
 
 
+def _pipeline_error_lines(table: pd.DataFrame, title: str, note: str = "") -> list[str]:
+    """A claims.md section: each pipeline's mean error over replicates with its 95 % interval, per
+    target, motion and shutter (a :func:`pipeline_table` or :func:`every_pipeline_table`)."""
+    lines = ["", f"## {title}", "",
+             " ".join(["Mean over replicates of each replicate's mean |d_est − d_true|, with its 95 % interval.", note]).strip(),
+             "", "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
+             "|---|---|---|---|---|---|---|"]
+    for (t, m, s, p), g in table.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
+        values = g["abs_error_m"].dropna().to_numpy()
+        mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
+        lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
+                     f"{g['rate'].mean():.2f} |")
+    return lines
+
+
 def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = None,
                         study: MovingDroneStudy | None = None, pipelines: pd.DataFrame | None = None,
                         gains: pd.DataFrame | None = None, every: pd.DataFrame | None = None) -> str:
@@ -635,26 +650,10 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
             rate = g.set_index("mount")["detection_rate"]
             lines.append(f"| {t} | {m} | {s} | " + " | ".join(f"{rate.get(x, math.nan):.2f}" for x in MOUNTS) + " |")
     if pipelines is not None and len(pipelines):
-        lines += ["", "## Each pipeline's error (frames all three detected)", "",
-                  "Mean over replicates of each replicate's mean |d_est − d_true|, with its 95 % interval.", "",
-                  "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
-                  "|---|---|---|---|---|---|---|"]
-        for (t, m, s, p), g in pipelines.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
-            values = g["abs_error_m"].dropna().to_numpy()
-            mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
-            lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
-                         f"{g['rate'].mean():.2f} |")
+        lines += _pipeline_error_lines(pipelines, "Each pipeline's error (frames all three detected)")
     if every is not None and len(every):
-        lines += ["", "## Every pipeline's error (SP's frames: every mount's estimators detected)", "",
-                  "Mean over replicates of each replicate's mean |d_est − d_true|, with its 95 % interval; "
-                  "(paper): the mount's own estimator, (best): the exact one.", "",
-                  "| target | motion | shutter | pipeline | n | error [mm] [95 % CI] | frames all detected |",
-                  "|---|---|---|---|---|---|---|"]
-        for (t, m, s, p), g in every.groupby(["target", "motion", "shutter", "pipeline"], sort=False):
-            values = g["abs_error_m"].dropna().to_numpy()
-            mean, low, high = stats.mean_interval(values) if len(values) else (math.nan,) * 3
-            lines.append(f"| {t} | {m} | {s} | {p} | {len(values)} | {_mm_interval(mean, low, high)} | "
-                         f"{g['rate'].mean():.2f} |")
+        lines += _pipeline_error_lines(every, "Every pipeline's error (SP's frames: every mount's estimators detected)",
+                                       "(paper): the mount's own estimator, (best): the exact one.")
     if gains is not None and len(gains):
         lines += ["", "## The gain, decomposed", "",
                   "G = stabilised − active error, mm (exact estimator, frames both mounts detected, global shutter); "
