@@ -305,7 +305,7 @@ def replicate_table(results) -> pd.DataFrame:
                              key=lambda s: s.map(order) if s.name != "seed" else s, ignore_index=True)
 
 
-def _pipeline_columns(f: pd.DataFrame, exact, pair, bp, sp=None) -> dict:
+def _pipeline_columns(f: pd.DataFrame, exact, pair, bp, sp) -> dict:
     """A run's errors on the frames the pipelines compare (NaN where they do not apply):
     ``pair_abs_error_m`` (exact estimator, frames the stabilised and active mounts' exact
     estimators both detected: the gain), ``bp_rate``, ``bp_paper_abs_error_m`` (own estimator)
@@ -376,10 +376,9 @@ def every_pipeline_table(replicates: pd.DataFrame) -> pd.DataFrame:
         mounts = g.set_index("mount")
         if not set(MOUNTS) <= set(mounts.index):
             continue
-        pipelines = ("active (paper)", "active (best)") + PASSIVE_PIPELINES[t]
-        for p in pipelines:
-            mount, estimator = p.split(" (")
-            column = "sp_paper_abs_error_m" if estimator == "paper)" else "sp_best_abs_error_m"
+        for p in ("active (paper)", "active (best)") + PASSIVE_PIPELINES[t]:
+            mount, estimator = p.rstrip(")").split(" (")  # "fixed (best)" -> fixed, best
+            column = f"sp_{estimator}_abs_error_m"
             rows.append(dict(target=t, motion=m, shutter=s, pipeline=p, seed=seed,
                              rate=float(mounts.loc["active", "sp_rate"]), abs_error_m=float(mounts.loc[mount, column])))
     return pd.DataFrame(rows)
