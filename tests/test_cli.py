@@ -17,6 +17,7 @@ import pytest
 
 from gimbal_lab import cli, runner
 from gimbal_lab.outputs import MANIFEST
+from gimbal_lab.studies import paper
 
 HEAVY = ("numpy", "cv2", "pyrender", "scipy", "pandas", "pymavlink", "matplotlib", "pyarrow", "av", "OpenGL")
 TINY = "[paper]\nreplicates = 2\nperiod_s = 0.3\n"  # 32 runs of 2 revolutions of 9 frames
@@ -264,15 +265,39 @@ def test_debug_shows_the_traceback_to_a_user(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # a real run: only its own files, stale ones kept and named
 # ------------------------------------------------------------------------------------------------
-def test_a_rerun_replaces_only_its_own_files_and_names_the_ones_it_kept(capsys, tmp_path, monkeypatch, tiny):
-    # the pipelines' costs timed in one pass, not the least of 5: which files a report holds does
-    # not depend on how its costs were measured (their values are checked in test_studies_paper)
+def test_run_paper_writes_the_whole_report_and_a_rerun_replaces_only_its_own_files(capsys, tmp_path, monkeypatch,
+                                                                                   tiny):
+    """The whole 16-cell grid and the 8 known-lens cells, 2 replicates of 2 revolutions of 9
+    frames: the report's tables, claims, figures, clips and metadata; then a rerun without clips
+    replaces only the files it writes and names the ones it kept. The pipelines' costs are timed
+    in one pass, not the least of 5: the checks hold for any number of passes (their values and
+    the repeats have their own tests in test_studies_paper)."""
+    import pandas as pd
+
     monkeypatch.setattr("gimbal_lab.studies._params.COST_REPEATS", 1)
     out = tmp_path / "results"
     status, stdout, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--jobs", "2"],
                                capsys)
     assert status == 0, err
     report = out / "paper"
+    for name in ("summary.csv", "replicates.parquet", "frames.parquet", "verdicts.csv", "claims.md", "study.json",
+                 "pipelines.csv", "pipeline_summary.csv", "figures/pipelines_error_vs_cost.png",
+                 "figures/fig11_sphere_error.png", "figures/fig14_aruco_xyz_active.svg", "figures/claims_forest.png"):
+        assert (report / name).stat().st_size > 0, name
+    meta = json.loads((report / "study.json").read_text())
+    assert meta["study"] == "paper" and meta["runs"] == 48
+    assert meta["parameters"] == paper.PaperStudy(replicates=2, period_s=0.3).to_dict()
+    assert len(pd.read_parquet(report / "frames.parquet")) == 48 * 18
+    assert len(pd.read_csv(report / "summary.csv")) == 8 * 2 + 8  # the sphere's two localisers, the marker's one
+    verdicts = pd.read_csv(report / "verdicts.csv")
+    # 29 of the paper and A7, BP1 and BP2 for 2 targets × 2 distortions × 2 trajectories
+    assert len(verdicts) == 29 + 16 and {"p_value", "p_holm", "verdict_holm"} <= set(verdicts.columns)
+    pipes = pd.read_csv(report / "pipeline_summary.csv")
+    assert len(pipes) == 8 * 3 and (pipes["cost_ms"] > 0).all()
+    # active (best) and best passive run the same estimator on the same frames: one measurement
+    same = pipes[pipes.pipeline != "active (paper)"].groupby(["target", "distortion", "trajectory"])["cost_ms"]
+    assert (same.nunique() == 1).all()
+
     manifest = json.loads((report / MANIFEST).read_text())["files"]
     written = sorted(p.relative_to(report).as_posix() for p in report.rglob("*") if p.is_file() and p.name != MANIFEST)
     assert sorted(manifest) == written and {"clips/sphere.mp4", "clips/aruco.mp4", "claims.md"} <= set(written)
