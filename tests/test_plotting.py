@@ -316,3 +316,35 @@ def test_payoff_map_draws_the_break_even_where_the_surface_changes_sign_and_poin
     offsets = fig.axes[0].collections[-1].get_offsets()
     assert np.asarray(offsets)[:, 1] == pytest.approx([-2.0, 3.0])  # mm
     plt.close("all")
+
+
+@pytest.mark.parametrize("u, v, corner", [(50.0, 40.0, (34, 24)), (0.0, 0.0, None), (99.6, 79.4, None)])
+def test_crop_around_the_target_is_the_image_around_it_black_beyond_its_edges(u, v, corner):
+    """The moving-drone figure's enlarged crop: pixel (r, c) of the crop is image pixel
+    (round(v) − zoom + r, round(u) − zoom + c) where that exists, black elsewhere."""
+    import numpy as np
+
+    from gimbal_lab.plotting.study import crop_around
+
+    image = np.random.default_rng(0).integers(1, 256, (80, 100, 3), dtype=np.uint8)  # never black
+    crop = crop_around(image, u, v, 16)
+    assert crop.shape == (32, 32, 3)
+    rows, cols = np.mgrid[0:32, 0:32]
+    r, c = int(round(v)) - 16 + rows, int(round(u)) - 16 + cols
+    inside = (0 <= r) & (r < 80) & (0 <= c) & (c < 100)
+    assert np.array_equal(crop[inside], image[r[inside], c[inside]])
+    assert not crop[~inside].any()
+    if corner is not None:  # wholly inside: the plain slice
+        assert np.array_equal(crop, image[corner[1]:corner[1] + 32, corner[0]:corner[0] + 32])
+
+
+@pytest.mark.parametrize("u, v", [(-0.6, 40.0), (100.6, 40.0), (50.0, -3.0), (50.0, 81.0), (float("nan"), 1.0),
+                                  (1.0, float("inf"))])
+def test_crop_around_a_target_outside_the_frame_is_none(u, v):
+    """A target whose centre is outside the frame (or not projected) has no crop, rather than an
+    empty or wrapped-around slice (a flying drone's mount can lose the target at the instant shown)."""
+    import numpy as np
+
+    from gimbal_lab.plotting.study import crop_around
+
+    assert crop_around(np.zeros((80, 100, 3), np.uint8), u, v, 16) is None

@@ -477,6 +477,19 @@ def plot_mount_bars(summary, fig=None):
     return fig
 
 
+def crop_around(image: np.ndarray, u: float, v: float, zoom_px: int) -> np.ndarray | None:
+    """The ``2·zoom_px`` square of ``image`` centred on pixel (u, v), black beyond the image's
+    edges; None when (u, v) is not finite or lies outside the image (no crop to show)."""
+    h, w = image.shape[:2]
+    if not (np.isfinite(u) and np.isfinite(v)):
+        return None
+    cu, cv = int(round(u)), int(round(v))
+    if not (0 <= cu <= w and 0 <= cv <= h):
+        return None
+    pad = np.pad(image, ((zoom_px, zoom_px), (zoom_px, zoom_px)) + ((0, 0),) * (image.ndim - 2), constant_values=0)
+    return pad[cv: cv + 2 * zoom_px, cu: cu + 2 * zoom_px]
+
+
 def plot_mount_frames(runs, frame: int, renderer=None, zoom_px: int = 48, fig=None):
     """One instant seen by several runs of one cell (the moving-drone study's three mounts).
 
@@ -504,13 +517,13 @@ def plot_mount_frames(runs, frame: int, renderer=None, zoom_px: int = 48, fig=No
             row, image = next(replay(result, renderer=renderer, start=frame, stop=frame + 1))
             axes[0, col].imshow(annotate(image, row, c, title=f"{c.pointing.mount.upper()}  streak {row.streak_px:.1f} px"))
             axes[0, col].set_axis_off()
-            u, v = row.true_u_px, row.true_v_px
             ax = axes[1, col]
-            if np.isfinite(u) and np.isfinite(v):
-                u0, v0 = int(round(u)) - zoom_px, int(round(v)) - zoom_px
-                pad = np.pad(image, ((zoom_px, zoom_px), (zoom_px, zoom_px), (0, 0)), constant_values=0)
-                ax.imshow(pad[v0 + zoom_px: v0 + 3 * zoom_px, u0 + zoom_px: u0 + 3 * zoom_px], interpolation="nearest")
-            ax.set_title(f"{2 * zoom_px} × {2 * zoom_px} px around the target", fontsize=9)
+            crop = crop_around(image, row.true_u_px, row.true_v_px, zoom_px)
+            if crop is not None:
+                ax.imshow(crop, interpolation="nearest")
+                ax.set_title(f"{2 * zoom_px} × {2 * zoom_px} px around the target", fontsize=9)
+            else:
+                ax.set_title("the target's centre is outside the frame", fontsize=9)
             ax.set_axis_off()
     finally:
         if own:
