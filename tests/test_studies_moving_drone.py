@@ -288,6 +288,24 @@ def test_a_partial_grid_checks_only_the_cells_it_ran():
     assert (v["verdict"] == stats.HOLDS).all()
 
 
+def test_a_shutter_a_cell_did_not_run_is_left_out_and_h4_needs_both():
+    """Notebook 09's test size: the rolling shutter only for the sphere in flight."""
+    df = make_replicates(designed_errors())
+    ran = ((df.target == "sphere") & df.motion.isin(["vibration", "flight"])) | ((df.target == "aruco")
+                                                                                 & (df.motion == "flight"))
+    ran &= (df.shutter == "global") | ((df.target == "sphere") & (df.motion == "flight"))
+    v = md.check_hypotheses(df[ran])
+    # H1, H3: 2 per cell and shutter run (sphere vibration 1, sphere flight 2, marker flight 1); H2: the flight
+    # cells' shutters; H4: the one cell with both shutters
+    assert [int((v["id"] == h).sum()) for h in ("H1", "H2", "H3", "H4")] == [8, 3, 8, 2]
+    assert set(v.loc[v["id"] == "H4", "condition"]) == {"sphere, flight"}
+    assert set(v.loc[v["condition"].str.endswith("rolling"), "condition"]) == {"sphere, flight, rolling"}
+    assert (v["verdict"] == stats.HOLDS).all()
+    # a shutter run by some mounts of a cell but not all is still a clear error
+    with pytest.raises(ValueError, match="no rows for sphere/vibration/stabilised/rolling"):
+        md.check_hypotheses(df[ran | ((df.target == "sphere") & (df.motion == "vibration") & (df["mount"] == "fixed"))])
+
+
 def test_markdown_gives_counts_reasons_and_detection_rates():
     cells = designed_errors()
     cells[("sphere", "hover", "stabilised", "global")] = (0.150, 10.0)
