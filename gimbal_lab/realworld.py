@@ -381,10 +381,22 @@ def sphere_photo(
     """
     s = int(supersample)
     width, height = intrinsics.width, intrinsics.height
-    jj, ii = np.meshgrid((np.arange(width * s) + 0.5) / s - 0.5, (np.arange(height * s) + 0.5) / s - 0.5)
+    c = np.asarray(center_cam_m, float)
+    # Only sub-pixels whose rays can reach the ball are cast: those inside the image of the cube
+    # around it (a perspective image of a convex body lies inside that of any convex body holding
+    # it), with a pixel's margin; all of them when a corner of the cube is not in front of the camera.
+    rows, cols = slice(0, height * s), slice(0, width * s)
+    corners = c + radius_m * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    if np.all(corners[:, 2] > 0):
+        u = intrinsics.cx + intrinsics.fx * corners[:, 0] / corners[:, 2]
+        v = intrinsics.cy + intrinsics.fy * corners[:, 1] / corners[:, 2]
+        # sub-pixel k of a row sits at (k + 0.5) / s − 0.5 px
+        first = lambda low, n: int(np.clip(math.floor((low - 1.0 + 0.5) * s), 0, n * s))  # noqa: E731
+        last = lambda high, n: int(np.clip(math.ceil((high + 1.0 + 0.5) * s), 0, n * s))  # noqa: E731
+        rows, cols = slice(first(v.min(), height), last(v.max(), height)), slice(first(u.min(), width), last(u.max(), width))
+    jj, ii = np.meshgrid(((np.arange(width * s) + 0.5) / s - 0.5)[cols], ((np.arange(height * s) + 0.5) / s - 0.5)[rows])
     rays = np.stack(((jj - intrinsics.cx) / intrinsics.fx, (ii - intrinsics.cy) / intrinsics.fy, np.ones_like(jj)), -1)
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    c = np.asarray(center_cam_m, float)
     b = rays @ c
     disc = b**2 - (c @ c - radius_m**2)
     hit = disc > 0
@@ -398,7 +410,8 @@ def sphere_photo(
         bg = np.broadcast_to(bg, (height, width, 3))
     bg_hi = cv2.resize(np.ascontiguousarray(bg, np.float32), (width * s, height * s), interpolation=cv2.INTER_NEAREST)
     ball = shade[..., None] * np.asarray(colour, np.float32)
-    image = np.where(hit[..., None], ball, bg_hi).astype(np.float32)
+    image = bg_hi.copy()
+    image[rows, cols] = np.where(hit[..., None], ball, bg_hi[rows, cols])
     return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
 
 

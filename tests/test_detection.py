@@ -762,6 +762,36 @@ def test_exact_method_on_real_looking_balls_does_not_depend_on_the_background(ba
     assert np.mean(errors) < np.mean(errors_pixel)
 
 
+WIDE = Intrinsics(fx=200.0, fy=200.0, cx=319.5, cy=239.5, width=640, height=480)  # a 116° lens
+
+
+@pytest.mark.parametrize("centre, camera", [((0.3, -0.2, 2.5), CAM), ((1.6, 1.1, 2.0), CAM), ((-0.05, 0.02, 0.15), CAM),
+                                            ((0.12, 0.0, 0.02), CAM), ((0.0, 0.0, -1.0), CAM), ((0.0, 0.0, 0.0), WIDE)],
+                         ids=["in view", "off axis, cut by the frame", "nearly touching the lens",
+                              "beside the lens, partly behind it", "behind", "around the lens, wide"])
+def test_sphere_photo_casts_only_where_the_ball_can_be_and_equals_casting_every_ray(centre, camera):
+    """sphere_photo casts rays only inside the image of the cube around the ball (every ray when
+    the cube is not wholly in front of the camera: its corners' images then need not bound the
+    ball's); the result equals casting every sub-pixel's ray (the formula written out here) bit for
+    bit, on a textured background."""
+    s, c, r = 2, np.asarray(centre, float), RADIUS_M
+    background = np.random.default_rng(3).uniform(0, 1, (camera.height, camera.width, 3)).astype(np.float32)
+    jj, ii = np.meshgrid((np.arange(camera.width * s) + 0.5) / s - 0.5, (np.arange(camera.height * s) + 0.5) / s - 0.5)
+    rays = np.stack(((jj - camera.cx) / camera.fx, (ii - camera.cy) / camera.fy, np.ones_like(jj)), -1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    b = rays @ c
+    disc = b**2 - (c @ c - r**2)
+    hit = disc > 0
+    lam = np.where(hit, b - np.sqrt(np.where(hit, disc, 0.0)), 0.0)
+    light = np.array([0.3, -0.8, -0.5]) / np.linalg.norm([0.3, -0.8, -0.5])
+    shade = 0.25 + 0.75 * np.clip(((rays * lam[..., None] - c) / r) @ light, 0.0, None)
+    hi = cv2.resize(background, (camera.width * s, camera.height * s), interpolation=cv2.INTER_NEAREST)
+    full = np.where(hit[..., None], shade[..., None] * np.asarray(BALL_RED, np.float32), hi).astype(np.float32)
+    expected = cv2.resize(full, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    got = sphere_photo(camera, c, r, background, colour=BALL_RED, supersample=s)
+    assert got.dtype == np.float32 and np.array_equal(got, expected)
+
+
 def test_sphere_on_a_brown_desk_touching_balls_and_a_red_poster_give_no_wrong_blob():
     rng = np.random.default_rng(8)
     centre = np.array([0.0, 0.1, 2.5])
