@@ -65,6 +65,7 @@ __all__ = [
     "MOTIONS",
     "MOUNTS",
     "SHUTTERS",
+    "shutter_of",
     "STREAK_FLOOR_PX",
     "flight_phase_s",
     "grid",
@@ -212,13 +213,14 @@ def arm_of(config: TrackingConfig) -> str:
 # ----------------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------------
-def _shutter(config: TrackingConfig) -> str:
+def shutter_of(config: TrackingConfig) -> str:
+    """The shutter a run's camera has: "rolling" when its rows have a readout time, else "global"."""
     return "rolling" if config.camera.readout_s > 0 else "global"
 
 
 def _identity(config: TrackingConfig) -> dict:
     return {"arm": arm_of(config), "target": config.target.kind, "motion": config.platform.motion,
-            "mount": config.pointing.mount, "shutter": _shutter(config), "seed": config.seed}
+            "mount": config.pointing.mount, "shutter": shutter_of(config), "seed": config.seed}
 
 
 def _exact(result) -> tuple[np.ndarray, np.ndarray] | None:
@@ -261,7 +263,7 @@ def replicate_table(results) -> pd.DataFrame:
     groups: dict[tuple, list] = {}
     for r in results:
         c = r.config
-        groups.setdefault((arm_of(c), c.target.kind, c.platform.motion, _shutter(c), c.seed), []).append(r)
+        groups.setdefault((arm_of(c), c.target.kind, c.platform.motion, shutter_of(c), c.seed), []).append(r)
     rows = []
     for members in groups.values():
         measured = {id(r): _measured(r) for r in members}
@@ -684,7 +686,7 @@ def example_runs(results, target: str, motion: str = EXAMPLE_MOTION, shutter: st
         raise ValueError("no runs given")
     seed = seeds[0] if seed is None else seed
     runs = {r.config.pointing.mount: r for r in results
-            if (r.config.target.kind, r.config.platform.motion, _shutter(r.config), r.config.seed)
+            if (r.config.target.kind, r.config.platform.motion, shutter_of(r.config), r.config.seed)
             == (target, motion, shutter, seed)}
     missing = [m for m in MOUNTS if m not in runs]
     if missing:
