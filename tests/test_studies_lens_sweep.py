@@ -206,6 +206,27 @@ def make_pipelines(gap_m=0.005, overrides=None):
     return pd.DataFrame(rows)
 
 
+def test_measure_costs_times_every_kth_measured_frame_of_the_ignore_run(monkeypatch):
+    """``every`` (the notebook's test size) times frames 60, 60 + k, … of the measured revolution,
+    the very frames the run saw, for every pipeline of the lens; other strategies' runs are skipped."""
+    from gimbal_lab.studies._params import run_frames
+    from gimbal_lab.simulation import simulate
+
+    study = ls.LensSweepStudy(replicates=2)
+    run = simulate(study.config("sphere", "pinhole", "ignore", "passive", 0))
+    timed = []
+    monkeypatch.setattr(ls, "_cpu_seconds", lambda estimate, images: timed.append(images) or 1e-3)
+    costs = ls.measure_costs([run], jobs=1, progress=False, repeats=1, every=25)
+    expected = run_frames(run, 60, 120, every=25)
+    assert len(expected) == 3 and (costs["frames"] == 3).all()
+    assert sorted(costs["method"]) == ["circle", "exact"] and len(timed) == 2
+    frames = run_frames(run, 60, 120)
+    for images in timed:
+        assert all(np.array_equal(a, frames[i]) for a, i in zip(images, (0, 25, 50), strict=True))
+    with pytest.raises(ValueError, match="every"):
+        ls.measure_costs([run], jobs=1, progress=False, every=0)
+
+
 def test_every_hypothesis_holds_on_designed_replicates():
     cells = designed_cells()
     v = ls.check_hypotheses(make_replicates(cells), make_pipelines(), make_costs(cells))

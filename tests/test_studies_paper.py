@@ -473,6 +473,29 @@ def test_cpu_seconds_per_frame_times_every_frame_each_pass_and_refuses_bad_input
             _params.cpu_seconds_per_frame(calls.append, images, repeats=bad)
 
 
+def test_pipeline_costs_time_every_kth_measured_frame_of_both_runs(monkeypatch):
+    """``every`` (the notebooks' test size) times frames start, start + k, … of the measured
+    revolution of the passive and the active run, the very frames the runs saw; 1 times them all."""
+    from gimbal_lab.simulation import simulate
+    from gimbal_lab.studies import _params
+
+    study = paper.PaperStudy(replicates=2, period_s=0.3)  # 9 frames a revolution, 18 a run
+    runs = [simulate(study.config("sphere", "distorted", "circular", mode, 0)) for mode in paper.MODES]
+    all_frames = [_params.run_frames(r) for r in runs]
+    timed = []
+    monkeypatch.setattr(_params, "cpu_seconds_per_frame", lambda estimate, images, repeats: timed.append(images) or 1e-3)
+    for every, per_run in ((4, [9, 13, 17]), (1, list(range(9, 18)))):
+        timed.clear()
+        costs = paper.pipeline_costs(runs, repeats=1, every=every)
+        expected = [frames[i] for frames in all_frames for i in per_run]
+        assert (costs["frames"] == 2 * len(per_run)).all() and len(timed) == 2  # the circle method, the cone fit
+        for images in timed:
+            assert len(images) == len(expected) and all(np.array_equal(a, b) for a, b in zip(images, expected))
+    for bad, error in ((0, ValueError), (1.5, ValueError), (True, TypeError)):
+        with pytest.raises(error, match="every"):
+            paper.pipeline_costs(runs, repeats=1, every=bad)
+
+
 def test_all_configs_are_the_grid_and_the_pipelines_runs():
     from gimbal_lab.studies import moving_drone as md
 

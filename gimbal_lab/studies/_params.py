@@ -310,12 +310,12 @@ def holm_change_lines(verdicts) -> list[str]:
 COST_REPEATS = 5
 
 
-def run_frames(result, start: int = 0, stop: int | None = None, renderer=None) -> list:
-    """The noisy frames ``start:stop`` of a finished run, rendered again exactly as the run saw them
-    (:func:`gimbal_lab.show.replay`): the stored frames every pipeline's cost is measured on."""
+def run_frames(result, start: int = 0, stop: int | None = None, renderer=None, every: int = 1) -> list:
+    """The noisy frames ``start:stop:every`` of a finished run, rendered again exactly as the run saw
+    them (:func:`gimbal_lab.show.replay`): the stored frames every pipeline's cost is measured on."""
     from ..show import replay
 
-    return [image for _, image in replay(result, renderer=renderer, start=start, stop=stop)]
+    return [image for _, image in replay(result, renderer=renderer, every=every, start=start, stop=stop)]
 
 
 def cpu_seconds_per_frame(estimate, images, repeats: int = COST_REPEATS) -> float:

@@ -420,16 +420,17 @@ def _cpu_seconds(estimate, images) -> float:
     return time.process_time() - start
 
 
-def _cost_job(result, repeats: int = COST_REPEATS) -> list[dict]:
-    """What a worker does for one run: replay its measured frames (bit-identical to the run's,
-    :func:`gimbal_lab.show.replay`), then time every pipeline of its lens on them, ``repeats``
-    rounds of each pipeline in turn (module-level, so an executor can pickle it)."""
+def _cost_job(result, repeats: int = COST_REPEATS, every: int = 1) -> list[dict]:
+    """What a worker does for one run: replay its measured frames (every ``every``-th; bit-identical
+    to the run's, :func:`gimbal_lab.show.replay`), then time every pipeline of its lens on them,
+    ``repeats`` rounds of each pipeline in turn (module-level, so an executor can pickle it)."""
     from ..runner import _prepare_process, _renderer_for
     from ..show import replay
 
     _prepare_process()
     c = result.config
-    images = [image for _, image in replay(result, renderer=_renderer_for(c), start=round(c.frames_per_revolution))]
+    images = [image for _, image in replay(result, renderer=_renderer_for(c), every=every,
+                                            start=round(c.frames_per_revolution))]
     if not images:
         raise ValueError(f"{c.label} seed {c.seed}: no measured frames to time")
     target, lens = c.target.kind, lens_name(c)
@@ -446,7 +447,7 @@ def _cost_job(result, repeats: int = COST_REPEATS) -> list[dict]:
 
 
 def measure_costs(results, *, jobs: int | None = None, executor=None, progress: bool = True,
-                  repeats: int = COST_REPEATS) -> pd.DataFrame:
+                  repeats: int = COST_REPEATS, every: int = 1) -> pd.DataFrame:
     """CPU time per frame of every pipeline, measured apart from the runs (docs/design.md).
 
     For each target, lens (field cones), mode and seed, the "ignore" run's measured frames are
@@ -466,17 +467,20 @@ def measure_costs(results, *, jobs: int | None = None, executor=None, progress: 
         Where the measurements go instead (a Dask cluster's executor).
     repeats : int
         Passes per pipeline, >= 1 (:data:`COST_REPEATS`).
+    every : int
+        Time every ``every``-th measured frame (the study times them all: 1).
 
     Returns
     -------
     DataFrame
-        target, lens, mode, seed, strategy, method, frames, cpu_ms.
+        target, lens, mode, seed, strategy, method, frames (timed), cpu_ms.
     """
     from concurrent.futures import as_completed
 
     from ..runner import _local_pool, _single_threaded_children, _stop_pool
 
     repeats = _number("repeats", repeats, low=1, high=1000, integer=True)
+    every = _number("every", every, low=1, high=10_000, integer=True)
     runs = [r for r in results if r.config.estimator.lens_strategy == "ignore" and cone_name(r.config) == "field"]
     if jobs is None:
         jobs = os.cpu_count() or 1
@@ -489,14 +493,14 @@ def measure_costs(results, *, jobs: int | None = None, executor=None, progress: 
     try:
         if executor is None and jobs == 1:
             for r in runs:
-                rows += _cost_job(r, repeats)
+                rows += _cost_job(r, repeats, every)
                 if bar is not None:
                     bar.update()
         elif runs:
             with _single_threaded_children() if executor is None else _nothing():
                 pool = executor if executor is not None else _local_pool(min(jobs, len(runs)))
                 try:
-                    for future in as_completed([pool.submit(_cost_job, r, repeats) for r in runs]):
+                    for future in as_completed([pool.submit(_cost_job, r, repeats, every) for r in runs]):
                         rows += future.result()
                         if bar is not None:
                             bar.update()

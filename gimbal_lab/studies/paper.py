@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..config import Camera, Estimator, Pointing, Target, TrackingConfig, seed_stream
+from ..config import Camera, Estimator, Pointing, Target, TrackingConfig, _number, seed_stream
 from ._params import (StudyParams, format_p, holm_change_lines, md_cell, report_pyplot, verdict_counts, verdict_rule,
                       write_report_files)
 
@@ -398,16 +398,17 @@ def _pipeline_estimator(c: TrackingConfig, pipeline: str) -> Estimator:
                      aruco_refinement=c.estimator.aruco_refinement)
 
 
-def pipeline_costs(results, repeats: int | None = None) -> pd.DataFrame:
+def pipeline_costs(results, repeats: int | None = None, every: int = 1) -> pd.DataFrame:
     """CPU cost per frame of each pipeline's detection and localisation, measured apart from the runs.
 
     Per target, distortion and trajectory, the frames are the measured revolution of the first
-    replicate's passive and active runs of the paper's grid, rendered again exactly as the runs
-    saw them (:func:`gimbal_lab.studies._params.run_frames`); every pipeline's estimator (the
-    detector and its one localiser, :meth:`gimbal_lab.config.Estimator.build` without the
-    alternative) is timed on those same frames with :func:`time.process_time`, the least of
-    ``repeats`` passes (:func:`gimbal_lab.studies._params.cpu_seconds_per_frame`; 5 by default).
-    "active (best)" and "best passive" run the same estimator, so one measurement gives both.
+    replicate's passive and active runs of the paper's grid (every ``every``-th frame of it; the
+    study times them all), rendered again exactly as the runs saw them
+    (:func:`gimbal_lab.studies._params.run_frames`); every pipeline's estimator (the detector and
+    its one localiser, :meth:`gimbal_lab.config.Estimator.build` without the alternative) is timed
+    on those same frames with :func:`time.process_time`, the least of ``repeats`` passes
+    (:func:`gimbal_lab.studies._params.cpu_seconds_per_frame`; 5 by default). "active (best)" and
+    "best passive" run the same estimator, so one measurement gives both.
 
     Returns
     -------
@@ -418,6 +419,7 @@ def pipeline_costs(results, repeats: int | None = None) -> pd.DataFrame:
     from ._params import COST_REPEATS, cpu_seconds_per_frame, run_frames
 
     repeats = COST_REPEATS if repeats is None else repeats
+    every = _number("every", every, low=1, high=10_000, integer=True)
     first: dict[tuple, dict] = {}
     for r in sorted((r for r in results if is_study_run(r.config)), key=lambda r: r.config.seed):
         c = r.config
@@ -433,7 +435,7 @@ def pipeline_costs(results, repeats: int | None = None) -> pd.DataFrame:
         try:
             images = [image for r in runs
                       for image in run_frames(r, int(round(r.config.frames_per_revolution)), r.config.n_frames,
-                                              renderer=renderer)]
+                                              renderer=renderer, every=every)]
         finally:
             renderer.close()
         seconds: dict = {}
