@@ -70,7 +70,8 @@ os.environ.setdefault("GIMBAL_LAB_WIDGETS", "0")
 # The study notebooks (07 onwards) run 2 replicates per cell under the test suite instead of the
 # studies' declared 10: the fewest that give a paired interval. Same code, fewer replicates (and
 # below 10, notebooks 09, 10 and 15 run a subset of their cells, and 07, 08 and 10 time each
-# pipeline's cost in one pass instead of 5: each parameters cell says which); their closing checks
+# pipeline's cost in one pass over every 4th measured frame instead of 5 passes over every frame:
+# each parameters cell says which); their closing checks
 # hold at any count. Set GIMBAL_LAB_REPLICATES=10 before `pytest` to test the full size (then every
 # notebook runs it).
 _SUITE_REPLICATES = "2"
