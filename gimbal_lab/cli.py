@@ -7,15 +7,19 @@ pandas, pymavlink) until their command runs, so ``gimbal-lab --help`` and every 
 answer at once.
 
 Errors reach the user as one line on stderr, naming the culprit: a bad argument or output path
-exits 2, a failure while working exits 1, Ctrl-C exits 130 saying what is kept. ``--debug`` shows
-the traceback of an error instead.
+exits 2, a failure while working exits 1, Ctrl-C exits 130 saying what is kept. SIGTERM (``kill``,
+a job scheduler's time limit) stops a command as Ctrl-C does, says the same, and exits 143.
+``--debug`` shows the traceback of an error instead.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import threading
 
 from .argtypes import length_m, nonnegative_int, positive_int  # noqa: F401 (the commands' types, kept here too)
 
@@ -29,6 +33,33 @@ _COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld_cli", "gimba
                     "gimbal_lab.mavlink.cli")
 
 EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+#: Exit status after SIGTERM: 128 + the signal's number, as a shell reports a process it ended.
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the command: raised where Ctrl-C's KeyboardInterrupt would be, so a sweep
+    stops its workers and keeps its finished runs exactly as after Ctrl-C."""
+
+
+@contextlib.contextmanager
+def _sigterm_stops_like_ctrl_c(received: list):
+    """While the block runs, SIGTERM raises :class:`Terminated` (and is noted in ``received``);
+    the previous handler is restored after. Only the main thread can handle signals: elsewhere
+    (a command called from a thread) SIGTERM keeps its own disposition."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        received.append(signum)
+        raise Terminated("terminated")
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -106,18 +137,22 @@ def main(argv=None) -> int:
         return EXIT_USAGE
     # a command module sets ``_parser`` to its sub-parser so its errors name the sub-command
     command = getattr(args, "_parser", None) or parser
+    terminated: list = []  # SIGTERM's number once it arrived
     if args.debug:
-        return int(args.func(args, command) or 0)
+        with _sigterm_stops_like_ctrl_c(terminated):
+            return int(args.func(args, command) or 0)
     import warnings
 
     show = warnings.showwarning
     warnings.showwarning = _warn_in_one_line
     try:
-        return int(args.func(args, command) or 0)
+        with _sigterm_stops_like_ctrl_c(terminated):
+            return int(args.func(args, command) or 0)
     except KeyboardInterrupt as exc:
         # RunInterrupted and the report's interruption say what is kept; a bare Ctrl-C, that it stopped
-        print(f"\n{command.prog}: {_one_line(exc) if str(exc) else 'interrupted'}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        said = _one_line(exc) if str(exc) and not isinstance(exc, Terminated) else "interrupted"
+        print(f"\n{command.prog}: {'SIGTERM: ' if terminated else ''}{said}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - every error is one line unless --debug
         known = _known(exc)
         if known is None:

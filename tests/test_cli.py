@@ -235,6 +235,31 @@ def test_ctrl_c_says_what_a_rerun_reuses(cache, capsys, tmp_path, monkeypatch, t
         assert "run the same command again to resume" not in err and "without --no-cache" in err
 
 
+def test_sigterm_stops_a_sweep_like_ctrl_c_keeps_its_runs_and_exits_143(capsys, tmp_path, monkeypatch, tiny):
+    """SIGTERM lands as the third run of a sweep in this process starts: the two finished runs are
+    stored, the line says what a rerun reuses, the exit status is 143, and the handler the
+    process had before is back."""
+    import signal
+
+    computed, real = [], runner._run_one
+
+    def run_one(config, *args, **kwargs):
+        if len(computed) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        computed.append(config)
+        return real(config, *args, **kwargs)
+
+    monkeypatch.setattr(runner, "_run_one", run_one)
+    before = signal.getsignal(signal.SIGTERM)
+    status, _, err = call(["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet", "--jobs", "1"],
+                          capsys)
+    store = runner.ResultsStore(tmp_path / "store")
+    assert status == 143 == cli.EXIT_TERMINATED
+    assert_one_line(err, f"gimbal-lab run: SIGTERM: {runner.RunInterrupted(2, 48, store)}")
+    assert len(list((tmp_path / "store").rglob("*.parquet"))) == 2 and len(computed) == 2
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
 def test_unexpected_errors_are_one_line_and_debug_shows_the_traceback(capsys, tmp_path, monkeypatch, tiny):
     def boom(*args, **kwargs):
         raise RuntimeError("boom\nwith a second line")
