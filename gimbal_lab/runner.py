@@ -1025,14 +1025,23 @@ MAX_POOL_RESTARTS = 2
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel queued work and end the local workers now (they may be mid-render)."""
+    """Cancel queued work and end the local workers now (they may be mid-render), then wait for
+    the pool's manager thread to end.
+
+    Not waiting for that thread leaves a race at interpreter exit (seen once on CPython 3.11):
+    the exit hook of ``concurrent.futures`` writes to the thread's wake-up pipe without a lock
+    while the thread, seeing its workers gone, closes that pipe; Python then prints "Exception
+    ignored … OSError: [Errno 9] Bad file descriptor" after the command's own last line."""
     processes = list(getattr(pool, "_processes", {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in processes:
         if p.is_alive():
             p.terminate()
     for p in processes:
         p.join(timeout=5)
+    if manager is not None and manager is not threading.current_thread():
+        manager.join(timeout=5)
 
 
 def dask_executor(address: str):

@@ -1022,6 +1022,38 @@ def test_a_worker_killed_mid_sweep_is_replaced_and_every_run_lands_unchanged(tmp
         assert_frame_equal(stored[result.config.key], result.frames, check_exact=True)
 
 
+def test_stopping_a_pool_ends_its_workers_and_its_manager_thread_before_returning(monkeypatch):
+    """Ctrl-C, SIGTERM and a dead worker stop the local pool with ``_stop_pool``. When it returns,
+    the workers are gone and so is the pool's manager thread: a thread still running then races
+    with the interpreter's exit hook for its wake-up pipe (an "Exception ignored … Bad file
+    descriptor" after the command's last line). The manager thread is made 1 s slower to wind
+    up after its workers die, as on a loaded machine; it usually ends within the workers' join."""
+    from concurrent.futures import process
+    from concurrent.futures.process import BrokenProcessPool
+
+    wind_up = process._ExecutorManagerThread.terminate_broken
+
+    def slow_wind_up(self, *args, **kwargs):
+        time.sleep(1.0)
+        return wind_up(self, *args, **kwargs)
+
+    monkeypatch.setattr(process._ExecutorManagerThread, "terminate_broken", slow_wind_up)
+    pool = runner._local_pool(1)
+    busy = pool.submit(time.sleep, 60)
+    queued = pool.submit(time.sleep, 60)
+    deadline = time.monotonic() + 60
+    while not busy.running() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    workers, manager = list(pool._processes.values()), pool._executor_manager_thread
+    assert busy.running() and manager.is_alive()
+    started = time.monotonic()
+    runner._stop_pool(pool)
+    assert time.monotonic() - started < 10  # not the 60 s sleep
+    assert not manager.is_alive() and not any(w.is_alive() for w in workers)
+    assert queued.cancelled() or isinstance(queued.exception(timeout=0), BrokenProcessPool)
+    assert isinstance(busy.exception(timeout=0), BrokenProcessPool)
+
+
 @needs_proc
 def test_workers_ignore_sigint_and_sigkill_of_the_parent_leaves_no_orphans(tmp_path):
     # One long run keeps a worker busy; the other worker finishes its short run and idles.
