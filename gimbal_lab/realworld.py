@@ -775,7 +775,8 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
         A gimbal to steer on the detections: ``gimbal.frame(n, uv_px, fps)`` is called once per
         frame after the frame's rows are written (the first detection's pixel centre, or None; the
         source's frame rate); when it returns False (the link is lost) the loop stops as after
-        Ctrl-C. The caller closes it.
+        Ctrl-C. After a Ctrl-C, ``gimbal.unsteered(n, uv_px)`` logs the last kept frame if its
+        ``frame`` call did not. The caller closes it.
 
     Returns
     -------
@@ -850,6 +851,7 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
                         cv2.putText(bgr, f"{n}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
                         if writer is None:
                             writer = VideoWriter(tmp["video"], float(frames.fps))
+                    steer_uv = found[0][1] if found else None
                     with deferred_interrupts():  # the frame's rows and its video frame, or neither
                         if video:
                             writer.write(bgr[..., ::-1])
@@ -858,11 +860,13 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
                         n += 1
                     if bar is not None:
                         bar.update(1)
-                    if gimbal is not None and not gimbal.frame(n - 1, found[0][1] if found else None, float(frames.fps)):
+                    if gimbal is not None and not gimbal.frame(n - 1, steer_uv, float(frames.fps)):
                         interrupted = True
                         break
             except KeyboardInterrupt:
                 interrupted = True
+                if gimbal is not None and n > 0:  # Ctrl-C between the frame's rows and its steering
+                    gimbal.unsteered(n - 1, steer_uv)
         with deferred_interrupts():  # the pair is finished and renamed together
             if writer is not None:
                 writer.close()

@@ -166,6 +166,55 @@ def test_track_steers_the_gimbal_towards_the_target_and_logs_every_frame(tmp_pat
         assert after < before, (row.frame, omega_cam)
 
 
+@pytest.mark.parametrize("lands", ["before the frame is steered", "after its command went out"])
+def test_ctrl_c_at_any_point_of_a_frame_keeps_a_gimbal_row_for_every_tracked_frame(tmp_path, video, monkeypatch,
+                                                                                lands):
+    """Ctrl-C lands at frame 10: just before ``frame`` runs (as when it arrives while track writes the
+    frame's rows, and is raised as that block ends), or as the frame's command goes out (SIGINT
+    itself, delivered inside the driver's send). Either way gimbal.csv has a row for every frame
+    track kept, the last one without a command in the first case and with the command that was
+    sent in the second."""
+    interrupt_at = 10
+    with device_process() as (_, address, sent):
+        steer = GimbalSteer(address, CAM, None, tmp_path, timeout_s=2.0, discover_timeout_s=LIVENESS_S, pace=False)
+        if lands == "before the frame is steered":
+            steer_frame = steer.frame
+
+            def frame(n, uv_px, fps):
+                if n == interrupt_at:
+                    raise KeyboardInterrupt
+                return steer_frame(n, uv_px, fps)
+
+            monkeypatch.setattr(steer, "frame", frame)
+        else:
+            send, calls = steer.driver.send_joint_rates, []
+
+            def send_then_interrupt(rate, q):
+                send(rate, q)
+                calls.append(np.array(rate, float))
+                if len(calls) == interrupt_at + 1:
+                    signal.raise_signal(signal.SIGINT)  # Ctrl-C, as the datagram leaves
+
+            monkeypatch.setattr(steer.driver, "send_joint_rates", send_then_interrupt)
+        try:
+            df = rw.track(video, tmp_path, "sphere", rw.Calibration(CAM, None), max_frames=30, progress=False,
+                          video=False, gimbal=steer)
+        finally:
+            steer.close()
+    assert df.attrs["interrupted"] and df.attrs["frames"] == interrupt_at + 1
+    log = pd.read_csv(tmp_path / "gimbal.csv")
+    kept = sorted(pd.read_csv(tmp_path / "track.csv")["frame"].unique())
+    assert log["frame"].tolist() == kept == list(range(interrupt_at + 1))
+    commands = log[["cmd_yaw_rad_s", "cmd_roll_rad_s", "cmd_pitch_rad_s"]].to_numpy()
+    assert np.isfinite(commands[:interrupt_at]).all()
+    if lands == "before the frame is steered":
+        assert np.isnan(commands[interrupt_at]).all() and log["detected"].iloc[interrupt_at] == 1
+        np.testing.assert_allclose(log[["u_px", "v_px"]].iloc[interrupt_at], df[["u_px", "v_px"]].iloc[-1],
+                                   rtol=0, atol=1e-9)
+    else:
+        np.testing.assert_array_equal(commands[interrupt_at], calls[-1])
+
+
 _TRACK = """
 import sys
 from gimbal_lab import cli

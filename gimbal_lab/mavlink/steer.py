@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..outputs import deferred_interrupts
 from .driver import GimbalLinkError, MavlinkGimbal
 
 __all__ = ["GimbalSteer", "GIMBAL_COLUMNS"]
@@ -106,38 +107,54 @@ class GimbalSteer:
             self._start = now
         detected = uv_px is not None
         uv = np.asarray(uv_px, float) if detected else np.full(2, math.nan)
-        if self.pace:
-            due = self._start + n * self.dt_s
-            if due > now:
-                try:
-                    time.sleep(due - now)
-                except KeyboardInterrupt:  # the frame's row, without a command, then stop
-                    self._write(n, time.monotonic(), detected, uv, None, np.full(3, math.nan))
-                    raise
-                now = time.monotonic()
-        report = None
+        report, sent = None, np.full(3, math.nan)
         try:
+            if self.pace:
+                due = self._start + n * self.dt_s
+                if due > now:
+                    time.sleep(due - now)
+                    now = time.monotonic()
             report = self.driver.latest()
             known = report is not None and np.all(np.isfinite(report.q_rad))
             q = report.q_rad if known else np.zeros(3)
             J_cam = self.kinematics.angular_jacobian(q, frame="camera", check_limits=False)
             rate = np.asarray(self.loop.update(uv if detected else None, self.dt_s, J_cam, q), float)
-            self.driver.send_joint_rates(rate, q)
+            with deferred_interrupts():  # what went out is what the row says
+                self.driver.send_joint_rates(rate, q)
+                sent = rate
         except GimbalLinkError as exc:
             self.lost = exc
-            self._write(n, now, detected, uv, report, np.full(3, math.nan))
+            self._write(n, now, detected, uv, report, sent)
             return False
-        self._write(n, now, detected, uv, report, rate)
+        except KeyboardInterrupt:  # the frame's row (with the command if it went out), then stop
+            if self.rows <= n:
+                self._write(n, now, detected, uv, report, sent)
+            raise
+        self._write(n, now, detected, uv, report, sent)
         return True
+
+    def unsteered(self, n: int, uv_px) -> None:
+        """Log frame ``n``'s row without a command, unless it is logged already: for a frame whose
+        :meth:`frame` call a Ctrl-C prevented (the caller had written the frame's own rows), so
+        that ``gimbal.csv`` still has a row for every frame the caller kept."""
+        if self.rows > n:
+            return
+        now = time.monotonic()
+        if self._start is None:
+            self._start = now
+        detected = uv_px is not None
+        uv = np.asarray(uv_px, float) if detected else np.full(2, math.nan)
+        self._write(n, now, detected, uv, None, np.full(3, math.nan))
 
     def _write(self, n, now, detected, uv, report, rate) -> None:
         if report is None:
             time_s, age_s, quat, q = math.nan, math.nan, np.full(4, math.nan), np.full(3, math.nan)
         else:
             time_s, age_s, quat, q = report.time_s, now - report.received_s, report.quaternion, report.q_rad
-        self._table.writerow((n, now - self._start, int(detected), *uv, time_s, age_s, *quat, *q, *rate))
-        self._handle.flush()
-        self.rows += 1
+        with deferred_interrupts():  # a row is whole and counted, or absent
+            self._table.writerow((n, now - self._start, int(detected), *uv, time_s, age_s, *quat, *q, *rate))
+            self._handle.flush()
+            self.rows += 1
 
     def stop(self) -> bool:
         """Send zero rates (the gimbal holds where it is); False when the link is already lost."""
