@@ -105,8 +105,7 @@ class GimbalSteer:
                                                   max_rate_rad_s=self.max_rate_rad_s)
         if self._start is None:
             self._start = now
-        detected = uv_px is not None
-        uv = np.asarray(uv_px, float) if detected else np.full(2, math.nan)
+        detected, uv = _pixel(uv_px)
         report, sent = None, np.full(3, math.nan)
         try:
             if self.pace:
@@ -142,9 +141,7 @@ class GimbalSteer:
         now = time.monotonic()
         if self._start is None:
             self._start = now
-        detected = uv_px is not None
-        uv = np.asarray(uv_px, float) if detected else np.full(2, math.nan)
-        self._write(n, now, detected, uv, None, np.full(3, math.nan))
+        self._write(n, now, *_pixel(uv_px), None, np.full(3, math.nan))
 
     def _write(self, n, now, detected, uv, report, rate) -> None:
         if report is None:
@@ -178,3 +175,9 @@ class GimbalSteer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _pixel(uv_px):
+    """``(detected, uv)``: a frame's detection (pixel centre, or None) as the log records it."""
+    detected = uv_px is not None
+    return detected, (np.asarray(uv_px, float) if detected else np.full(2, math.nan))
