@@ -673,3 +673,90 @@ def test_device_parameters_are_checked():
     with pytest.raises(ValueError, match="duration_s must be finite and > 0"):
         simulated_gimbal(duration_s=0)
     assert firmware_version_word("0.2.0") == 2 << 8 and firmware_version_word("1.2.3") == (3 << 16) | (2 << 8) | 1
+
+
+# ---------------------------------------------------------------------------------- signing
+def _stock_signer(key, *, system=1, component=191, timestamp=None):
+    """A stock pymavlink sender signing with ``key`` (pymavlink's own signing is the oracle)."""
+    from gimbal_lab.mavlink.signing import signing_timestamp
+
+    sender = mavlink.MAVLink(None, srcSystem=system, srcComponent=component)
+    sender.signing.secret_key = key
+    sender.signing.sign_outgoing = True
+    sender.signing.timestamp = signing_timestamp() if timestamp is None else timestamp
+    return sender
+
+
+def _heartbeat_packet(sender):
+    return sender.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(sender)
+
+
+def _signed_receiver(key):
+    from gimbal_lab.mavlink.protocol import new_mavlink
+    from gimbal_lab.mavlink.signing import enable_signing
+
+    receiver = new_mavlink(None, 1, 154)
+    enable_signing(receiver, key)
+    return receiver
+
+
+def _kinds(receiver, packet):
+    return [m.get_type() for m in receiver.parse_buffer(packet) or ()]
+
+
+def test_signing_key_file_forms(tmp_path):
+    from gimbal_lab.mavlink.signing import read_key
+
+    key = bytes(range(32))
+    (tmp_path / "raw").write_bytes(key)
+    (tmp_path / "hex").write_text(key.hex().upper() + "\n")
+    assert read_key(tmp_path / "raw") == key and read_key(tmp_path / "hex") == key
+    for name, data, size in (("short", key[:31], 31), ("long", key + b"\n", 33), ("badhex", b"g" * 64, 64),
+                             ("empty", b"", 0)):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ValueError, match=rf"must hold 32 raw bytes or 64 hexadecimal characters, got {size} bytes"):
+            read_key(tmp_path / name)
+    with pytest.raises(ValueError, match="signing key file .*missing: No such file"):
+        read_key(tmp_path / "missing")
+
+
+def test_signing_refuses_unsigned_and_wrongly_signed_packets():
+    """Accepted: signed with the key (by pymavlink's own signer). Refused and counted: unsigned
+    MAVLink 2, MAVLink 1, another key, a replay of an accepted packet."""
+    from gimbal_lab.mavlink.signing import refused_count
+
+    key, other = bytes(range(32)), bytes(32 * [7])
+    receiver = _signed_receiver(key)
+    good = _heartbeat_packet(_stock_signer(key))
+    assert _kinds(receiver, good) == ["HEARTBEAT"] and refused_count(receiver) == 0
+    assert _kinds(receiver, good) == ["BAD_DATA"]  # the same packet again: a replay
+    unsigned = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+    assert _kinds(receiver, _heartbeat_packet(unsigned)) == ["BAD_DATA"]
+    v1 = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+    v1.WIRE_PROTOCOL_VERSION = "1.0"
+    assert _kinds(receiver, v1.heartbeat_encode(6, 8, 0, 0, 0).pack(v1, force_mavlink1=True)) == ["BAD_DATA"]
+    assert _kinds(receiver, _heartbeat_packet(_stock_signer(other))) == ["BAD_DATA"]
+    assert refused_count(receiver) == 4
+    # what this end sends is signed with the key: a stock receiver holding it accepts it
+    stock = mavlink.MAVLink(None)
+    stock.signing.secret_key = key
+    reply = receiver.heartbeat_encode(26, 8, 0, 0, 4).pack(receiver)
+    (msg,) = stock.parse_buffer(reply)
+    assert msg.get_type() == "HEARTBEAT" and msg._signed
+
+
+def test_a_forged_packet_cannot_block_the_real_sender():
+    """A packet with a wrong signature but a time stamp far ahead does not move the stream's time
+    stamp (pymavlink's own check records it first, and the real sender's packets would then be
+    replays); the number of streams remembered is bounded."""
+    from gimbal_lab.mavlink.signing import MAX_STREAMS, signing_timestamp
+
+    key = bytes(range(32))
+    receiver = _signed_receiver(key)
+    now = signing_timestamp()
+    forger = _stock_signer(bytes(32 * [9]), timestamp=now + 10**9)
+    assert _kinds(receiver, _heartbeat_packet(forger)) == ["BAD_DATA"]
+    assert _kinds(receiver, _heartbeat_packet(_stock_signer(key, timestamp=now + 1))) == ["HEARTBEAT"]
+    for system in range(1, MAX_STREAMS + 20):
+        assert _kinds(receiver, _heartbeat_packet(_stock_signer(key, system=system))) == ["HEARTBEAT"]
+    assert len(receiver.signing.stream_timestamps) == MAX_STREAMS
