@@ -281,7 +281,10 @@ class _Part:
 # camera
 # ----------------------------------------------------------------------------------------------
 _LENS_NAMES = ("none", "default")
-_BLURS = ("subframes", "fast")
+_BLURS = ("auto", "fast", "subframes", "none")
+#: Largest image motion, px, between two sub-frames of an exposure whose count is derived from its
+#: streak (:meth:`Camera.subframe_count`): consecutive copies of the target overlap to a pixel.
+SUBFRAME_STEP_PX = 1.0
 _LENS_MODELS = {"brown_conrady": BrownConrady, "kannala_brandt": KannalaBrandt}
 
 
@@ -327,13 +330,19 @@ class Camera(_Part):
         Exposure, s, in [0, 1/fps] (0: a sharp instant).
     readout_s : float
         Rolling-shutter readout, s, in [0, 1/fps] (0: global shutter); row r is exposed from
-        t + r·readout_s/H. Needs ``blur="fast"``.
-    blur : {"subframes", "fast"}
-        How an exposure is integrated: "subframes" averages ``n_subframes`` full renders; "fast"
-        is :meth:`gimbal_lab.scene.SceneRenderer.render_motion` (warped layers, global or rolling
-        shutter; ``n_subframes`` unused). A fisheye integrates from sub-frames only.
-    n_subframes : int
-        Renders averaged over an exposure with ``blur="subframes"`` (1: sharp).
+        t + r·readout_s/H. Needs the fast blur (``blur`` "fast", or "auto" where it applies).
+    blur : {"auto", "fast", "subframes", "none"}
+        How an exposure is integrated (docs/design.md, "Exposure and blur"). A camera that
+        exposes integrates its exposure: "auto" (the default) takes the fast path where it applies
+        and sub-frames where it does not (:meth:`blur_method`); "fast" is
+        :meth:`gimbal_lab.scene.SceneRenderer.render_motion` (warped layers, global or rolling
+        shutter); "subframes" averages full renders, ``n_subframes`` of them or as many as the
+        frame's streak needs (:meth:`subframe_count`). "none" renders one sharp instant at
+        mid-exposure although the camera exposes: an idealisation that must be asked for, and
+        that every report naming such a run states. A fisheye integrates from sub-frames only.
+    n_subframes : int or None
+        Renders averaged over an exposure with ``blur="subframes"``, >= 2; None (the default)
+        derives the count of each frame from its streak (:meth:`subframe_count`).
     noise_std : float
         Sensor noise, grey levels (2).
     """
@@ -347,8 +356,8 @@ class Camera(_Part):
     latency_frames: int = 1
     exposure_s: float = 0.0
     readout_s: float = 0.0
-    blur: str = "subframes"
-    n_subframes: int = 1
+    blur: str = "auto"
+    n_subframes: int | None = None
     noise_std: float = 2.0
 
     _NAME = "camera"
@@ -439,12 +448,19 @@ class Camera(_Part):
         self._number("noise_std", low=0.0, high=128.0)
         self._choice("blur", _BLURS)
         self._number("readout_s", low=0.0, high=1.0 / self.fps)
-        if self.readout_s > 0 and self.blur != "fast":
-            raise ValueError(f"camera.readout_s > 0 (a rolling shutter) needs camera.blur='fast', got {self.blur!r}")
-        self._number("n_subframes", low=1, high=_MAX_SUBFRAMES, integer=True)
-        if isinstance(self.lens, KannalaBrandt) and self.exposure_s > 0 and self.blur == "fast":
+        fisheye = isinstance(self.lens, KannalaBrandt)
+        if self.readout_s > 0 and (self.blur not in ("fast", "auto") or fisheye):
+            raise ValueError(f"camera.readout_s > 0 (a rolling shutter) needs camera.blur='fast' (or 'auto' without "
+                             f"a fisheye), got {self.blur!r}{' and a fisheye lens' if fisheye else ''}")
+        if fisheye and self.exposure_s > 0 and self.blur == "fast":
             raise ValueError("camera.lens is a KannalaBrandt fisheye, which integrates exposures from sub-frames: "
-                             "use camera.blur='subframes'")
+                             "use camera.blur='subframes' (or 'auto')")
+        if self.n_subframes is not None:
+            self._number("n_subframes", low=2, high=_MAX_SUBFRAMES, integer=True)
+            if self.blur != "subframes" or self.exposure_s <= 0:
+                raise ValueError(f"camera.n_subframes={self.n_subframes} does nothing unless camera.blur='subframes' "
+                                 f"and camera.exposure_s > 0 (got blur={self.blur!r}, exposure_s={self.exposure_s:g}); "
+                                 "leave it None to derive each frame's count from its streak")
 
     def _encode(self, name, value):
         if name == "lens" and isinstance(value, (BrownConrady, KannalaBrandt)):
@@ -535,13 +551,60 @@ class Camera(_Part):
             t = t_s + min(max(v, 0.0), rows - 1) * self.readout_s / rows + 0.5 * self.exposure_s
         return t
 
+    def blur_method(self, occluded: bool = False) -> str:
+        """How a frame's exposure is integrated: "sharp" (no exposure), "none" (asked for: one
+        sharp instant although the camera exposes), "fast" or "subframes".
+
+        ``blur="auto"`` takes the fast path where it applies and sub-frames where it does not: a
+        fisheye (rendered from cube faces) and a scene with occluders (``occluded``; the fast blur
+        composites the target over the background and cannot hide it).
+        """
+        if self.exposure_s <= 0 and self.readout_s <= 0:
+            return "sharp"
+        if self.blur != "auto":
+            return self.blur
+        return "subframes" if occluded or isinstance(self.lens, KannalaBrandt) else "fast"
+
+    def subframe_count(self, pose_fn, t_s: float, n_samples: int = 17) -> int:
+        """The sub-frames a frame exposed from ``t_s`` needs: ``n_subframes`` when given, else
+        enough that the image moves at most :data:`SUBFRAME_STEP_PX` between two of them.
+
+        The image motion over the exposure is the larger of the target centre's path (``pose_fn``
+        sampled at ``n_samples`` instants, projected through the lens) and the camera's rotation
+        times the focal length (the background's motion at the image centre; a translating
+        camera's parallax is left out, a shortcut that undercounts only for near ground).
+        n = clamp(⌈L / step⌉, 2, 1024).
+        """
+        if self.n_subframes is not None:
+            return self.n_subframes
+        times = t_s + self.exposure_s * np.linspace(0.0, 1.0, n_samples)
+        poses = [pose_fn(t) for t in times]
+        T_cam = np.array([p[0] for p in poses])
+        x = np.array([p[1][:3, 3] for p in poses])
+        R, c = T_cam[:, :3, :3], T_cam[:, :3, 3]
+        p = np.einsum("nji,nj->ni", R, x - c)
+        front = p[:, 2] > 0
+        target_px = 0.0
+        if front.sum() >= 2:
+            uv = project(p[front], self.intrinsics, self.lens_model)
+            target_px = float(np.sum(np.hypot(*np.diff(uv, axis=0).T)))
+        cos_angle = (np.trace(R[0].T @ R[1:], axis1=1, axis2=2) - 1.0) / 2.0
+        turn_rad = float(np.max(np.arccos(np.clip(cos_angle, -1.0, 1.0)), initial=0.0))
+        background_px = turn_rad * max(self.intrinsics.fx, self.intrinsics.fy)
+        motion_px = max(target_px, background_px)
+        if not math.isfinite(motion_px):
+            return _MAX_SUBFRAMES
+        return int(min(max(math.ceil(motion_px / SUBFRAME_STEP_PX), 2), _MAX_SUBFRAMES))
+
     def expose(self, renderer, pose_fn, t_s: float, T_world_cam, T_world_target) -> np.ndarray:
-        """The frame exposed from ``t_s`` (before noise): the exposure integrated as ``blur`` says,
-        or the single instant's render (``T_world_cam``, ``T_world_target``) when sharp."""
-        if self.exposure_s > 0 and self.blur == "fast":
+        """The frame exposed from ``t_s`` (before noise): the exposure integrated as
+        :meth:`blur_method` says, or the single instant's render (``T_world_cam``,
+        ``T_world_target``, the mid-exposure instant) when sharp or ``blur="none"``."""
+        method = self.blur_method(occluded=bool(getattr(renderer, "occluders", None)))
+        if method == "fast":
             return renderer.render_motion(pose_fn, t_s, self.exposure_s, self.readout_s)
-        if self.exposure_s > 0 and self.n_subframes > 1:
-            return renderer.render_exposure(pose_fn, t_s, self.exposure_s, self.n_subframes)
+        if method == "subframes":
+            return renderer.render_exposure(pose_fn, t_s, self.exposure_s, self.subframe_count(pose_fn, t_s))
         return renderer.render(T_world_cam, T_world_target)
 
     def add_noise(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -1463,8 +1526,8 @@ def check_parts(config: TrackingConfig) -> None:
       most :data:`_MAX_FRAMES`; camera.latency_frames fewer than that;
     * gimbal.inner_rate_hz >= camera.fps (the axes step at least once per frame);
     * an estimator.lens_strategy other than "ignore" needs a camera lens;
-    * target.occluders need camera.blur "subframes" when the camera exposes (the fast blur cannot
-      put the target behind them);
+    * target.occluders need camera.blur "subframes" or "auto" when the camera exposes (the fast
+      blur cannot put the target behind them), and a global shutter;
     * pointing "predictive" and "filter" assume a still platform;
     * a pointing.link assumes a still platform, and reports at most once per gimbal inner step.
 
@@ -1499,8 +1562,11 @@ def check_parts(config: TrackingConfig) -> None:
         raise ValueError(f"estimator.lens_strategy {config.estimator.lens_strategy!r} needs a lens; camera.lens is "
                          f"{camera.lens!r} (an ideal pinhole: use 'ignore')")
     if target.occluders and camera.exposure_s > 0 and camera.blur == "fast":
-        raise ValueError("target.occluders need camera.blur 'subframes': camera.blur 'fast' cannot put the target "
-                         "behind them")
+        raise ValueError("target.occluders need camera.blur 'subframes' (or 'auto'): camera.blur 'fast' cannot put "
+                         "the target behind them")
+    if target.occluders and camera.readout_s > 0:
+        raise ValueError("target.occluders and a rolling shutter (camera.readout_s > 0): only the fast blur renders a "
+                         "rolling shutter, and it cannot put the target behind occluders")
     if config.pointing.link is not None and config.platform.moving:
         raise ValueError(f"pointing.link assumes a still platform (the driver maps joint rates to the protocol's "
                          f"vehicle frame on a level body); platform.motion is {config.platform.motion!r}")

@@ -97,7 +97,7 @@ FRAME_COLUMNS = {
     "q0_yaw_rad, q0_roll_rad, q0_pitch_rad": "joint angles when the exposure starts",
     "w_yaw_rad_s, w_roll_rad_s, w_pitch_rad_s": "the camera's inertial rate in the joint basis when the exposure "
                                                 "starts (gimbal_lab.mount); with q0 it re-renders a sharp frame",
-    "streak_px": "the target's blur streak: length of the true centre's image path over the exposure, px",
+    "streak_px": "the target's blur streak as rendered: length of the true centre's image path over the exposure, px (0 for blur \"none\")",
     "cam_turn_deg": "largest rotation of the camera within the exposure, degrees (pointing jitter)",
     "hidden": "the line of sight to the target's centre passes through an occluder (truth)",
     "visible_fraction": "fraction of the target's outline seen past the occluders (truth; 1 without occluders)",
@@ -232,7 +232,10 @@ def image_motion(config: TrackingConfig, t_truth_s: float, camera_fn, n: int = 3
 
     The streak is the length of the path the target's true centre draws on the image during the
     exposure, sampled at ``n`` instants (for a rolling shutter: over the exposure of the target's
-    row). The camera's rotation is the largest angle between its orientation at the exposure's
+    row): the streak of the frame as rendered, so 0 for ``camera.blur="none"`` (one sharp
+    instant). Sub-frames whose count is derived from the streak space their copies at most
+    :data:`gimbal_lab.config.SUBFRAME_STEP_PX` apart, so their rendered streak is this one to
+    that step; a count given by hand renders (n − 1)/n of it. The camera's rotation is the largest angle between its orientation at the exposure's
     start and at any sampled instant (pointing jitter within one frame). The camera's poses come
     from ``camera_fn.many(times)`` when it has one (:class:`gimbal_lab.mount.ExposurePose`), else
     from ``camera_fn(t)`` at each instant.
@@ -241,6 +244,7 @@ def image_motion(config: TrackingConfig, t_truth_s: float, camera_fn, n: int = 3
     if camera.exposure_s <= 0:
         return 0.0, 0.0
     t0 = t_truth_s - 0.5 * camera.exposure_s
+    rendered = camera.blur != "none"  # blur "none": one sharp instant, no streak on the image
     times = np.linspace(t0, t0 + camera.exposure_s, n)
     if hasattr(camera_fn, "many"):
         T_cam = camera_fn.many(times)[1]
@@ -252,7 +256,7 @@ def image_motion(config: TrackingConfig, t_truth_s: float, camera_fn, n: int = 3
     front = p[:, 2] > 0
     if front.any():
         uv[front] = project(p[front], camera.intrinsics, camera.lens_model)
-    streak = float(np.sum(np.hypot(*np.diff(uv, axis=0).T)))
+    streak = float(np.sum(np.hypot(*np.diff(uv, axis=0).T))) if rendered else 0.0
     cos_angle = (np.trace(R[0].T @ R[1:], axis1=1, axis2=2) - 1.0) / 2.0
     return streak, float(np.max(np.arccos(np.clip(cos_angle, -1.0, 1.0)), initial=0.0))
 

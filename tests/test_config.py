@@ -54,12 +54,18 @@ def test_the_defaults_are_the_paper_studys_fixed_parameters():
         (Camera, dict(noise_std=-1), "camera.noise_std"),
         (Camera, dict(blur="motion"), "camera.blur"),
         (Camera, dict(n_subframes=0), "camera.n_subframes"),
+        (Camera, dict(exposure_s=0.01, blur="subframes", n_subframes=1), "camera.n_subframes must be >= 2"),
+        # an exposure without its blur only when asked for ("none"); a count that does nothing
+        (Camera, dict(exposure_s=0.01, n_subframes=4), r"camera.n_subframes=4 does nothing unless camera.blur="),
+        (Camera, dict(exposure_s=0.0, blur="subframes", n_subframes=4), r"camera.n_subframes=4 does nothing"),
+        (Camera, dict(exposure_s=0.01, blur="none", readout_s=0.01), "camera.readout_s > 0 .* needs camera.blur='fast'"),
         # the camera's own rules that tie its fields
         (Camera, dict(exposure_s=0.1), "camera.exposure_s"),  # longer than a frame at 30/s
         (Camera, dict(exposure_s=0.01, latency_frames=0), "camera.latency_frames >= 1"),
-        (Camera, dict(readout_s=0.01), "camera.readout_s > 0 .* needs camera.blur='fast'"),
+        (Camera, dict(readout_s=0.01, blur="subframes"), "camera.readout_s > 0 .* needs camera.blur='fast'"),
         (Camera, dict(readout_s=0.05, blur="fast"), "camera.readout_s"),  # longer than a frame
         (Camera, dict(lens=KannalaBrandt(), exposure_s=0.01, blur="fast"), "camera.blur='subframes'"),
+        (Camera, dict(lens=KannalaBrandt(), readout_s=0.01), "camera.readout_s > 0 .* and a fisheye lens"),
         (Camera, dict(calibration=Intrinsics.default(), hfov_rad=1.0), "camera.hfov_rad and camera.calibration"),
         (Camera, dict(calibration=Intrinsics.default(), hfov_rad=None, width=800), "camera.width=800 differs"),
         (Gimbal, dict(inner_rate_hz=0.0), "gimbal.inner_rate_hz"),
@@ -158,7 +164,7 @@ def test_the_rules_tying_parts_accept_what_they_allow():
     TrackingConfig(camera=Camera(fps=1000.0), revolutions=0.01)
     TrackingConfig(estimator=Estimator(lens_strategy="undistort"), camera=Camera(lens="default"))
     TrackingConfig(target=Target(occluders=(Occluder("pole", (1, 0, 1), (0.15, 0.15, 2)),)),
-                   camera=Camera(exposure_s=1 / 60, n_subframes=4))
+                   camera=Camera(exposure_s=1 / 60, blur="subframes", n_subframes=4))
     TrackingConfig(pointing=Pointing("paper"), platform=Platform(motion="flight"))
     check_parts(TrackingConfig())  # callable on its own, as the config's constructor calls it
 

@@ -73,7 +73,7 @@ def test_one_frame_from_the_middle_is_the_runs_own(runs):
 
 
 def test_blurred_frames_replay_exactly():
-    config = cfg(camera__exposure_s=1 / 60, camera__n_subframes=4, revolutions=0.15)
+    config = cfg(camera__exposure_s=1 / 60, camera__blur="subframes", camera__n_subframes=4, revolutions=0.15)
     result = simulate(config)
     estimate = estimator_of(config)
     assert result.frames.detected.sum() >= 5

@@ -171,7 +171,7 @@ def test_world_mapping_of_an_active_run_uses_the_pose_of_that_frame(renderers):
 
 
 def test_truth_is_taken_at_mid_exposure(renderers):
-    config = TrackingConfig(camera=Camera(exposure_s=1 / 60, n_subframes=2),
+    config = TrackingConfig(camera=Camera(exposure_s=1 / 60, blur="subframes", n_subframes=2),
                             target=Target(trajectory="diagonal", start_phase_s=0.4), revolutions=0.2)
     f = simulate(config, renderer=renderers(config)).frames
     assert np.allclose(f["t_mid_s"], f["t_s"] + 1 / 120, atol=1e-15)
@@ -227,8 +227,9 @@ def test_render_frame_takes_the_mid_exposure_state_and_integrates_over_the_expos
 
     camera_pose = lambda q: np.diag([1.0, 1.0, 1.0, 1.0]) + np.pad(np.diag(q), ((0, 1), (0, 1)))
     q0, qd = np.array([0.1, -0.2, 0.3]), np.array([2.0, -1.0, 0.5])
-    for exposure, n, kind in ((0.0, 1, "sharp"), (1 / 60, 4, "blurred")):
-        config = TrackingConfig(camera=Camera(exposure_s=exposure, n_subframes=n), target=Target(start_phase_s=0.7),
+    for exposure, n, kind in ((0.0, None, "sharp"), (1 / 60, 4, "blurred")):
+        config = TrackingConfig(camera=Camera(exposure_s=exposure, blur="subframes", n_subframes=n),
+                                target=Target(start_phase_s=0.7),
                                 pointing=Pointing("paper"))
         renderer = Recorder()
         camera_fn = lambda t: (q0 + qd * (t - 1.5), camera_pose(q0 + qd * (t - 1.5)))

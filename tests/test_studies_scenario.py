@@ -129,7 +129,7 @@ BAD_FILES = [
     ('[run]\nfirst_seed = -1\n', r"\[run\] first_seed: first_seed must be >= 0"),
     ('[camera]\nfps = -1\n', r"\[camera\] camera.fps must be > 0, got -1"),
     ('[camera]\nfsp = 30\n', r"\[camera\] unknown camera key\(s\): fsp \(allowed: width, height, hfov_rad"),
-    ('[camera]\nblur = "smooth"\n', r"\[camera\] camera.blur must be one of \('subframes', 'fast'\)"),
+    ('[camera]\nblur = "smooth"\n', r"\[camera\] camera.blur must be one of \('auto', 'fast', 'subframes', 'none'\)"),
     ('[camera]\ncalibration = "missing.yml"\n',
      r"\[camera\] calibration: calibration 'missing.yml': no such calibration file.*; allowed: an OpenCV FileStorage"),
     ('[camera]\ncalibration = 3\n', r"\[camera\] calibration: 3 is not a path; allowed: a calibration file's path"),
