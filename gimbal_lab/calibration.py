@@ -16,12 +16,22 @@ Rules (each violation is a ValueError naming the file, the node and what is allo
   (OpenCV order k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, τx, τy]]]]: 4, 5, 8, 12 or
   14 numbers); ``equidistant`` (or ``fisheye_model: 1``) is Kannala–Brandt (``cv2.fisheye``:
   exactly k1, k2, k3, k4); any other model is refused by name. Without either node the
-  coefficients are OpenCV's pinhole ones (Brown–Conrady).
+  coefficients are OpenCV's pinhole ones (Brown–Conrady), except a list of exactly 4, which is
+  refused as ambiguous: OpenCV writes both its pinhole k1, k2, p1, p2 and its fisheye
+  k1, k2, k3, k4 as 4 numbers, so the file must say which (``distortion_model`` or
+  ``fisheye_model``).
 * The lab models k1, k2, p1, p2, k3: the rational (k4–k6), thin-prism (s1–s4) and tilt (τx, τy)
   terms of 8-, 12- and 14-number lists must be exactly 0, else they are refused by name.
 * Every entry is a finite number (a quoted string, NaN or inf is refused); ``camera_matrix`` is
   3 × 3 with zero skew, a zero (2, 1) entry, bottom row (0, 0, 1) and fx, fy > 0 (the principal
   point may be anywhere); the image size is two positive integers.
+* Each node appears once (a second ``camera_matrix``, or a second ``rows`` inside one, is
+  refused); each image side is at most :data:`MAX_IMAGE_SIDE_PX` pixels.
+* The lens is invertible over the image: its radial map (r ↦ r·L(r), or θ ↦ θ_d(θ) for a fisheye)
+  must rise up to the normalised radius of the image corner farthest from the principal point
+  (for a fisheye, whose image circle may leave the corners dark, up to the nearest image edge),
+  else two image radii would come from one, and the lens is refused as folding inside the image
+  (e.g. k1 = 1e300).
 * A missing ``distortion_coefficients`` is refused: the file must say the lens is ideal, by
   all-zero coefficients or by a pinhole ``distortion_model`` with an empty list. An ideal lens
   is read as None.
@@ -43,7 +53,7 @@ from typing import NoReturn
 import cv2
 import numpy as np
 
-from .camera import LENS_TYPES, BrownConrady, Intrinsics, KannalaBrandt
+from .camera import LENS_TYPES, BrownConrady, Intrinsics, KannalaBrandt, UndistortionError, undistort
 
 __all__ = [
     "Calibration",
@@ -51,6 +61,7 @@ __all__ = [
     "save_calibration",
     "BROWN_CONRADY_MODELS",
     "KANNALA_BRANDT_MODELS",
+    "MAX_IMAGE_SIDE_PX",
 ]
 
 #: ``distortion_model`` names read as Brown–Conrady (OpenCV's pinhole lens model).
@@ -61,6 +72,9 @@ KANNALA_BRANDT_MODELS = ("equidistant",)
 # OpenCV's distortion vector, in order; the lab models the first five.
 _OPENCV_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 _OPENCV_COUNTS = (4, 5, 8, 12, 14)
+
+#: Largest image side a calibration may state, pixels (2^15: beyond any camera's sensor).
+MAX_IMAGE_SIDE_PX = 32768
 
 
 @dataclass(frozen=True)
@@ -186,6 +200,19 @@ class _File:
         if not self.fs.isOpened() or not self.fs.root().isMap():
             self.fs.release()
             raise ValueError(f"{str(path)!r} is not a calibration: expected a map of named nodes at the top level")
+        try:
+            self.once(self.fs.root(), "")
+        except ValueError:
+            self.fs.release()
+            raise
+
+    def once(self, node, prefix: str) -> None:
+        """Refuse a map in which a name appears twice (FileStorage would read the first silently)."""
+        seen = set()
+        for name in node.keys():
+            if name in seen:
+                self.fail(prefix + name, "appears twice", "each node once")
+            seen.add(name)
 
     def fail(self, node: str, problem: str, allowed: str) -> NoReturn:
         raise ValueError(f"{str(self.path)!r}: {node}: {problem}; allowed: {allowed}")
@@ -222,6 +249,7 @@ class _File:
             return None
         shape = None
         if node.isMap():
+            self.once(node, f"{name}/")
             data = node.getNode("data")
             if data.empty() or not (data.isSeq() or data.isNone()):
                 self.fail(name, "the map has no data list", "rows, cols and data: [numbers]")
@@ -267,6 +295,8 @@ def _image_size(f: _File, image_size) -> tuple[int, int]:
     for name, value in (("image_width", width), ("image_height", height)):
         if value is not None and value <= 0:
             f.fail(name, f"{value}", allowed)
+        if value is not None and value > MAX_IMAGE_SIDE_PX:
+            f.fail(name, f"{value} px", f"at most {MAX_IMAGE_SIDE_PX} px")
     if (width is None) != (height is None):
         f.fail("image_width" if width is None else "image_height", "missing", "both image_width and image_height")
     if image_size is not None:
@@ -337,6 +367,12 @@ def _lens(f: _File) -> BrownConrady | KannalaBrandt | None:
             f.fail("distortion_coefficients", "an empty list with no distortion_model says nothing about the lens",
                    "all-zero coefficients, or distortion_model: plumb_bob with the empty list, for an ideal lens")
         return None
+    if values.size == 4 and model is None:
+        f.fail("distortion_coefficients", "4 numbers with no distortion_model or fisheye_model: they may be "
+               "Brown–Conrady k1, k2, p1, p2 (OpenCV's pinhole lens) or Kannala–Brandt k1, k2, k3, k4 "
+               "(OpenCV's fisheye lens), which project differently",
+               "a node saying which: distortion_model: plumb_bob (or fisheye_model: 0) for Brown–Conrady, "
+               "distortion_model: equidistant (or fisheye_model: 1) for Kannala–Brandt")
     if values.size not in _OPENCV_COUNTS:
         f.fail("distortion_coefficients", f"{values.size} numbers",
                "4, 5, 8, 12 or 14 (OpenCV's k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]])")
@@ -353,6 +389,51 @@ def _lens(f: _File) -> BrownConrady | KannalaBrandt | None:
     except ValueError as exc:
         f.fail("distortion_coefficients", str(exc), "coefficients whose fold radius is computable")
     return None if lens.is_identity else lens
+
+
+def _fold_inside_image(intrinsics: Intrinsics, lens) -> str | None:
+    """Why ``lens`` is not invertible over the image of ``intrinsics``, or None when it is.
+
+    A pinhole lens's radial map r ↦ r·L(r) rises from 0 to its fold radius
+    (:meth:`BrownConrady.radial_limit`), where it reaches distorted radius r_max; every pixel
+    needs a preimage there, so the image corner farthest from the principal point, at normalised
+    radius ((u − cx)/fx, (v − cy)/fy) with the image spanning −0.5 … W − 0.5 px, must lie below
+    r_max. A fisheye's θ_d(θ) rises up to its field limit; its image circle may leave the corners
+    dark, so only a fold nearer than the nearest image edge is refused.
+    """
+    if lens is None:
+        return None
+    cam = intrinsics
+    us, vs = (-0.5 - cam.cx, cam.width - 0.5 - cam.cx), (-0.5 - cam.cy, cam.height - 0.5 - cam.cy)
+    if isinstance(lens, KannalaBrandt):
+        edges = [abs(u) / cam.fx for u in us] + [abs(v) / cam.fy for v in vs]
+        inside = (us[0] < 0 < us[1]) and (vs[0] < 0 < vs[1])
+        reach = min(edges) if inside else 0.0
+        field = KannalaBrandt(*lens.coefficients).max_field_rad  # where θ_d(θ) stops rising, or π
+        top = float(lens.theta_d(field))
+        if field < math.pi and top < reach:
+            return (f"the fisheye's θ_d(θ) stops rising at {math.degrees(field):.4g}° off the axis, at normalised "
+                    f"radius {top:.6g}, inside the image (its nearest edge lies at {reach:.6g})")
+        return None
+    corner = max(math.hypot(u / cam.fx, v / cam.fy) for u in us for v in vs)
+    r_fold = lens.radial_limit()
+    top = lens.radial_image(r_fold) if math.isfinite(r_fold) else math.inf
+    if top <= corner:
+        return (f"the lens folds inside the image: its radial map stops rising at undistorted radius {r_fold:.6g}, "
+                f"distorted radius {top:.6g}, but the image corner lies at distorted radius {corner:.6g} "
+                "(normalised)")
+    # rising in exact arithmetic is not enough: the inverse must be computable in doubles
+    border = np.array([(u, v) for u in (*us, 0.5 * (us[0] + us[1])) for v in (*vs, 0.5 * (vs[0] + vs[1]))])
+    xy_d = border / (cam.fx, cam.fy)
+    try:
+        with np.errstate(all="ignore"):
+            xy = undistort(xy_d, lens)
+    except UndistortionError:
+        xy = np.full_like(xy_d, np.nan)
+    if not np.all(np.isfinite(xy)):
+        return ("the lens cannot be inverted over the image in double precision (its image corners and edges "
+                "have no computable undistorted position)")
+    return None
 
 
 def _optional_number(f: _File, name: str, allowed: str) -> float | None:
@@ -403,6 +484,10 @@ def load_calibration(path, image_size: tuple[int, int] | None = None) -> Calibra
         if views is not None and views < 0:
             f.fail("views", f"{views}", "an integer >= 0")
         intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height)
+        fold = _fold_inside_image(intrinsics, lens)
+        if fold is not None:
+            f.fail("distortion_coefficients", fold,
+                   "a lens invertible over the image (a radial map that rises out to the image's edges)")
         return Calibration(intrinsics, lens, math.nan if rms is None else rms, views or 0)
     finally:
         f.fs.release()

@@ -341,6 +341,10 @@ class BrownConrady:
         """
         return math.sqrt(_first_positive_root((("k1", self.k1, 3), ("k2", self.k2, 5), ("k3", self.k3, 7))))
 
+    def radial_image(self, r: float) -> float:
+        """Distorted radius r·L(r) of undistorted radius ``r`` (normalised; the radial part alone)."""
+        return float(_radial_map(np.asarray(float(r)), self)[0])
+
 
 @dataclass(frozen=True)
 class KannalaBrandt:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from gimbal_lab import realworld as rw
-from gimbal_lab.calibration import Calibration, load_calibration, save_calibration
+from gimbal_lab.calibration import MAX_IMAGE_SIDE_PX, Calibration, load_calibration, save_calibration
 from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt, project
 
 REAL = Path("/work/shared/data/real-aruco")
@@ -119,12 +119,11 @@ def test_real_opencv_calibrations_project_as_opencv_does():
 @pytest.mark.parametrize(
     "D",
     [
-        [-0.31, 0.12, 0.0011, -0.0006],  # 4: k3 = 0
         [-0.31, 0.12, 0.0011, -0.0006, -0.027],
         [-0.31, 0.12, 0.0011, -0.0006, -0.027, 0.0, 0.0, 0.0],  # rational model, k4..k6 = 0
         [0.4, -0.2, 0.0011, -0.0006, 0.05] + [0.0] * 9,  # 14 numbers, pincushion
     ],
-    ids=["4", "5", "8", "14"],
+    ids=["5", "8", "14"],
 )
 def test_pinhole_lenses_written_by_opencv_are_read_exactly(tmp_path, suffix, D):
     path = write_opencv(tmp_path / f"cam{suffix}", {
@@ -251,6 +250,94 @@ def test_coefficients_the_lab_cannot_model_must_be_exactly_zero(tmp_path, count,
                                                "camera_matrix": np.array(K_RAW), "distortion_coefficients": np.array(D)})
     with pytest.raises(ValueError, match=rf"distortion_coefficients: {name} = 1e-09 not zero"):
         load_calibration(path)
+
+
+def test_four_coefficients_without_a_model_node_are_refused_naming_both_readings(tmp_path):
+    """The issue: an OpenCV fisheye calibration (no model node) was read as Brown–Conrady."""
+    D = [-0.013, -0.0053, 0.0014, -0.0002]
+    nodes = {"image_width": 640, "image_height": 480, "camera_matrix": np.array(K_RAW),
+             "distortion_coefficients": np.array(D).reshape(-1, 1)}
+    with pytest.raises(ValueError, match=r"cam\.yml.*distortion_coefficients: 4 numbers with no distortion_model or "
+                                         r"fisheye_model.*Brown–Conrady k1, k2, p1, p2.*Kannala–Brandt k1, k2, k3, k4"
+                                         r".*allowed: a node saying which: distortion_model: plumb_bob"):
+        load_calibration(write_opencv(tmp_path / "cam.yml", nodes))
+    with pytest.raises(ValueError, match=r"4 numbers with no distortion_model"):
+        load_calibration(ros_yaml(tmp_path / "no_model.yaml", D=D, model=None))
+    # the node that says which settles it, each way
+    pinhole = load_calibration(write_opencv(tmp_path / "pinhole.yml", {**nodes, "fisheye_model": 0}))
+    assert isinstance(pinhole.distortion, BrownConrady)
+    assert_projects_like_opencv(pinhole, K_RAW, D)
+    fisheye = load_calibration(write_opencv(tmp_path / "fisheye.yml", {**nodes, "fisheye_model": 1}))
+    assert isinstance(fisheye.distortion, KannalaBrandt)
+    assert_projects_like_opencv(fisheye, K_RAW, D, fisheye=True)
+    named = load_calibration(ros_yaml(tmp_path / "named.yaml", D=D, model="plumb_bob"))
+    assert named.distortion == pinhole.distortion
+
+
+def square_camera(f_px):
+    return [[f_px, 0.0, 319.5], [0.0, f_px, 239.5], [0.0, 0.0, 1.0]]
+
+
+def test_a_lens_that_folds_inside_the_image_is_refused_by_name(tmp_path):
+    """k1 = -0.5 alone: d/dr [r (1 + k1 r²)] = 1 + 3 k1 r² = 0 at r² = 2/3, where the distorted
+    radius peaks at r_max = √(2/3)·(1 − 1/3) = 0.5443 (by hand). A 640 × 480 image with cx, cy at its
+    centre has its corner at normalised radius 400/f (the image spans −0.5 … 639.5 px): inside the
+    fold for f = 740 px (0.5405), beyond it for f = 730 px (0.5479)."""
+    D = [-0.5, 0.0, 0.0, 0.0, 0.0]
+    inside = load_calibration(ros_yaml(tmp_path / "inside.yaml", K=square_camera(740.0), D=D))
+    assert inside.distortion.radial_limit() == pytest.approx(math.sqrt(2 / 3), rel=1e-15)
+    assert inside.distortion.radial_image(math.sqrt(2 / 3)) == pytest.approx(math.sqrt(2 / 3) * 2 / 3, rel=1e-15)
+    with pytest.raises(ValueError, match=r"beyond\.yaml.*distortion_coefficients: the lens folds inside the image: "
+                                         r"its radial map stops rising at undistorted radius 0\.816497, distorted "
+                                         r"radius 0\.544331, but the image corner lies at distorted radius 0\.547945"):
+        load_calibration(ros_yaml(tmp_path / "beyond.yaml", K=square_camera(730.0), D=D))
+    # the issue's file: rising everywhere in exact arithmetic, but r (1 + k1 r²) overflows long before any
+    # pixel's preimage is found, so every position came out NaN
+    with pytest.raises(ValueError, match=r"absurd\.yaml.*distortion_coefficients: the lens cannot be inverted over "
+                                         r"the image in double precision"):
+        load_calibration(ros_yaml(tmp_path / "absurd.yaml", D=[1e300, 0.0, 0.0, 0.0, 0.0]))
+
+
+def test_a_fisheye_that_folds_inside_the_image_is_refused_by_name(tmp_path):
+    """k1 = -0.3 alone: dθ_d/dθ = 1 − 0.9 θ² = 0 at θ = 1.0541 rad, where θ_d = θ·(1 − 0.3 θ²) = 0.70273
+    (by hand). The nearest edge of a 640 × 480 image with cy at its centre lies at 240/f: inside the
+    fold for f = 345 px (0.69565), beyond it for f = 338 px (0.71006). The corners may lie beyond (a
+    circular fisheye's corners are dark)."""
+    D = [-0.3, 0.0, 0.0, 0.0]
+    inside = load_calibration(ros_yaml(tmp_path / "inside.yaml", K=square_camera(345.0), D=D, model="equidistant"))
+    assert isinstance(inside.distortion, KannalaBrandt)
+    with pytest.raises(ValueError, match=r"distortion_coefficients: the fisheye's θ_d\(θ\) stops rising at 60\.4° off "
+                                         r"the axis, at normalised radius 0\.702728, inside the image \(its nearest "
+                                         r"edge lies at 0\.710059\)"):
+        load_calibration(ros_yaml(tmp_path / "beyond.yaml", K=square_camera(338.0), D=D, model="equidistant"))
+
+
+def test_a_node_given_twice_is_refused(tmp_path):
+    """The issue: with two camera_matrix nodes, OpenCV's reader takes the first silently."""
+    twice = ros_yaml(tmp_path / "twice.yaml")
+    text = twice.read_text()
+    twice.write_text(text + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n")
+    with pytest.raises(ValueError, match=r"twice\.yaml.*camera_matrix: appears twice; allowed: each node once"):
+        load_calibration(twice)
+    inner = tmp_path / "inner.yaml"
+    inner.write_text(text.replace("  rows: 3\n", "  rows: 3\n  rows: 4\n", 1))
+    with pytest.raises(ValueError, match=r"inner\.yaml.*camera_matrix/rows: appears twice"):
+        load_calibration(inner)
+    xml = write_opencv(tmp_path / "cam.xml", {"image_width": 640, "image_height": 480, "camera_matrix": np.array(K_RAW),
+                                               "distortion_coefficients": np.zeros(5)})
+    xml.write_text(xml.read_text().replace("<image_height>480</image_height>",
+                                           "<image_height>480</image_height><image_height>720</image_height>"))
+    with pytest.raises(ValueError, match=r"cam\.xml.*image_height: appears twice"):
+        load_calibration(xml)
+
+
+def test_image_sides_are_bounded(tmp_path):
+    limit = MAX_IMAGE_SIDE_PX
+    assert load_calibration(ros_yaml(tmp_path / "widest.yaml", size=(limit, 480))).image_size == (limit, 480)
+    with pytest.raises(ValueError, match=rf"huge\.yaml.*image_width: {limit + 1} px; allowed: at most {limit} px"):
+        load_calibration(ros_yaml(tmp_path / "huge.yaml", size=(limit + 1, 480)))
+    with pytest.raises(ValueError, match=r"image_height: 1000000000000 px; allowed: at most"):
+        load_calibration(ros_yaml(tmp_path / "absurd.yaml", size=(640, 10**12)))
 
 
 def test_an_unsupported_coefficient_count_is_refused(tmp_path):
