@@ -118,6 +118,8 @@ def _known(exc: BaseException) -> tuple[int, str] | None:
     runner = sys.modules.get("gimbal_lab.runner")
     if outputs is not None and isinstance(exc, outputs.OutputError):
         return EXIT_USAGE, _one_line(exc)
+    if outputs is not None and isinstance(exc, outputs.ReportNotWritten):  # it says what state the folder is in
+        return EXIT_FAILED, _one_line(exc)
     if runner is not None and isinstance(exc, (runner.StoreError, runner.SweepFailed)):
         return EXIT_FAILED, _one_line(exc)
     if isinstance(exc, MemoryError):

@@ -148,16 +148,26 @@ def test_leftovers_of_dead_writers_are_removed_and_live_ones_kept(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     host = outputs._HOST
-    dead_staging = out / f".gimbal-lab-staging-{host}-{dead.pid}-0a0b0c0d"
-    live_staging = out / f".gimbal-lab-staging-{host}-{os.getppid()}-0a0b0c0d"
-    dead_tmp = out / f".claims.partial-{host}-{dead.pid}-0a0b0c0d.md"
-    for d in (dead_staging, live_staging):
+
+    def tag(pid, check=None):  # what outputs.unique_tag makes for ``pid`` (or a wrong check tag)
+        core = f"{host}-{pid}-0a0b0c0d"
+        return f"{core}-{check or outputs._check_tag(core)}"
+
+    dead_staging = out / f".gimbal-lab-staging-{tag(dead.pid)}"
+    live_staging = out / f".gimbal-lab-staging-{tag(os.getppid())}"
+    dead_tmp = out / f".claims.partial-{tag(dead.pid)}.md"
+    # named like the lab's temporary files, with a dead pid, but not made by it (no or a wrong tag)
+    lookalikes = [out / f".gimbal-lab-staging-{host}-{dead.pid}-0a0b0c0d", out / f".gimbal-lab-staging-{tag(dead.pid, 'ffffff')}",
+                  out / f".notes.partial-{host}-{dead.pid}-0a0b0c0d.md", out / f".notes.partial-{tag(dead.pid, '000000')}.md"]
+    for d in (dead_staging, live_staging, *lookalikes[:2]):
         d.mkdir()
         (d / "x").write_text("x")
-    dead_tmp.write_text("torn")
+    for f in (dead_tmp, *lookalikes[2:]):
+        f.write_text("torn")
     _report(ReportFolder(out), {"claims.md": "2"})  # neither is taken for a file of someone else's
     assert not dead_staging.exists() and not dead_tmp.exists()
     assert live_staging.exists()
+    assert all(p.exists() for p in lookalikes)  # a user's files that look like leftovers survive
     assert _tree(out)["claims.md"] == "2"
 
 

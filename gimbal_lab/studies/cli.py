@@ -34,6 +34,9 @@ def _add_run_options(p) -> None:
                    help="recompute every run (the store is still written)")
     p.add_argument("--no-clips", dest="clips", action="store_false",
                    help="do not write the passive | active clips (DIR/STUDY/clips/*.mp4)")
+    p.add_argument("--overwrite-edited", action="store_true",
+                   help="replace files of OUT/STUDY that were edited since the lab wrote them (by default a run "
+                        "refuses such a folder before any work, naming the file)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -44,7 +47,9 @@ def add_parsers(sub) -> None:
                          epilog="OUT/STUDY is the lab's own folder: a run replaces the files it writes there and "
                                 "deletes nothing; it refuses a folder holding files it did not write (its list is "
                                 "OUT/STUDY/.gimbal-lab-manifest.json). Files of an earlier run that this one does not "
-                                "write again (the clips after --no-clips) are kept, and the last line names them.")
+                                "write again (the clips after --no-clips) are kept, and the last line names them. A "
+                                "file edited since the lab wrote it is refused unless --overwrite-edited; the report "
+                                "is committed whole or, on any failure, the folder is left as it was.")
     run.add_argument("study", nargs="?", help=f"the study: {', '.join(STUDIES)}; or a scenario file, FILE.toml")
     run.add_argument("--list", action="store_true", help="list the studies and the example scenarios and exit")
     _add_run_options(run)
@@ -73,7 +78,7 @@ def _run(args, parser) -> int:
                      "or a scenario file, FILE.toml")
     if not args.out or not args.out.strip():
         parser.error("--out must name a folder, got an empty string")
-    from ..outputs import OutputError, ReportFolder, check_writable_folder
+    from ..outputs import OutputError, ReportFolder, check_writable_folder, overwriting_edited
 
     out = Path(args.out)
     module = load(args.study)
@@ -95,7 +100,7 @@ def _run(args, parser) -> int:
     name = params.name if scenario else args.study
     try:  # before anything is computed: a bad --out fails in one line, at once
         check_writable_folder(out, "--out")
-        ReportFolder(out / name, "the report folder").check()
+        ReportFolder(out / name, "the report folder", overwrite_edited=args.overwrite_edited).check()
     except OutputError as exc:
         parser.error(str(exc))
 
@@ -138,8 +143,9 @@ def _run(args, parser) -> int:
         print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per {'point' if hasattr(params, 'points') else 'cell'}, {params.revolutions:g} "
               f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)
         try:
-            report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
-                                      progress=not args.quiet, clips=args.clips)
+            with overwriting_edited(args.overwrite_edited):  # the study's ReportFolder takes it from here
+                report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
+                                          progress=not args.quiet, clips=args.clips)
         except KeyboardInterrupt as exc:
             from ..outputs import ReportInterrupted
 

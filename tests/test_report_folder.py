@@ -1,0 +1,338 @@
+"""A report folder as a unit: hand edits are refused before any work (or overwritten on purpose),
+and a report is committed whole or not at all, whatever step fails."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from gimbal_lab import outputs
+from gimbal_lab.outputs import MANIFEST, OutputError, ReportFolder, ReportNotWritten, overwriting_edited
+
+OLD = {"claims.md": b"# claims\nold\n", "summary.csv": b"a,b\n1,2\n", "figures/fig1.png": b"\x89PNG old figure",
+       "clips/sphere.mp4": b"old clip"}
+# the new report rewrites three files, adds one in a folder it makes, and leaves the clip alone
+NEW = {"claims.md": b"# claims\nnew\n", "summary.csv": b"a,b\n3,4\n", "figures/fig1.png": b"\x89PNG new figure",
+       "tables/verdicts.csv": b"h,verdict\nH1,supported\n"}
+
+
+def _snapshot(path: Path) -> dict[str, bytes | str]:
+    """Every entry under ``path`` (hidden ones and the manifest included): a file's bytes, or
+    ``"<dir>"``; what "byte-identical" compares."""
+    found: dict[str, bytes | str] = {}
+    for p in sorted(path.rglob("*")):
+        name = p.relative_to(path).as_posix()
+        found[name] = "<dir>" if p.is_dir() and not p.is_symlink() else p.read_bytes()
+    return found
+
+
+def _write(folder: ReportFolder, files: dict[str, bytes]) -> None:
+    with folder.staging() as tmp:
+        for name, data in files.items():
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / name).write_bytes(data)
+
+
+def _is_new_report(out: Path) -> bool:
+    """Is ``out`` wholly the new report: NEW's files, the old clip kept, a manifest recording each?"""
+    files = {k: v for k, v in _snapshot(out).items() if v != "<dir>" and k != MANIFEST}
+    manifest = json.loads((out / MANIFEST).read_text())["files"]
+    return (files == {**NEW, "clips/sphere.mp4": OLD["clips/sphere.mp4"]}
+            and all(not entry.get("pending") for entry in manifest.values())
+            and sorted(manifest) == sorted(files)
+            and not any(p.name.startswith(".gimbal-lab-staging-") for p in out.iterdir()))
+
+
+@pytest.fixture
+def report(tmp_path) -> Path:
+    out = tmp_path / "paper"
+    _write(ReportFolder(out), OLD)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# hand edits
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("edit", ["append to claims.md", "replace the figure", "same size, other bytes",
+                                  "a link in its place", "a folder in its place"])
+def test_an_edited_lab_file_is_refused_before_any_work_naming_it(report, edit):
+    name = "figures/fig1.png" if "figure" in edit else "claims.md"
+    path = report / name
+    if edit == "append to claims.md":
+        path.write_bytes(path.read_bytes() + b"\nMy own paragraph.\n")
+    elif edit == "replace the figure":
+        path.write_bytes(b"\x89PNG a figure drawn by hand, longer than the lab's")
+    elif edit == "same size, other bytes":
+        path.write_bytes(b"# claims\nOLD\n")
+    elif edit == "a link in its place":  # to the same bytes, its own size (that of its target's name) the same
+        (report.parent / "same").mkdir()
+        (report.parent / "same" / "cl.md").write_bytes(OLD["claims.md"])
+        path.unlink()
+        path.symlink_to("../same/cl.md")
+        assert len("../same/cl.md") == len(OLD["claims.md"]) == os.lstat(path).st_size
+    else:
+        path.unlink()
+        path.mkdir()
+    before = _snapshot(report)
+    folder = ReportFolder(report, "the report folder")
+    assert folder.edited() == [name]
+    with pytest.raises(OutputError) as caught:
+        folder.check()
+    message = str(caught.value)
+    assert "\n" not in message and message == (
+        f"the report folder {report}: {name} was changed after gimbal-lab wrote it (its bytes differ from the record "
+        f"in {MANIFEST}); move it away to keep it, or pass --overwrite-edited to replace it")
+    ran = []
+    with pytest.raises(OutputError, match=f"{name} was changed"):
+        with folder.staging():
+            ran.append("the report was computed")
+    assert ran == [] and _snapshot(report) == before
+
+
+def test_an_edit_made_while_the_report_is_computed_is_caught_before_anything_is_replaced(report):
+    before_edit = _snapshot(report)
+    with pytest.raises(OutputError, match="claims.md was changed"):
+        with ReportFolder(report).staging() as tmp:
+            (tmp / "claims.md").write_bytes(b"new")
+            (report / "claims.md").write_bytes(b"edited meanwhile")
+    assert _snapshot(report) == {**before_edit, "claims.md": b"edited meanwhile"}
+
+
+@pytest.mark.parametrize("how", ["argument", "context"])
+def test_edited_files_are_overwritten_when_asked(report, how):
+    (report / "claims.md").write_bytes(b"edited by hand")
+    (report / "clips/sphere.mp4").write_bytes(b"an edited clip this report does not write")
+    if how == "argument":
+        _write(ReportFolder(report, overwrite_edited=True), NEW)
+    else:
+        with overwriting_edited():
+            _write(ReportFolder(report), NEW)
+        with pytest.raises(OutputError, match="clips/sphere.mp4 was changed"):  # the context ended
+            ReportFolder(report).check()
+    assert (report / "claims.md").read_bytes() == NEW["claims.md"]
+    # a file this report does not write is kept as it is (and still reported as edited)
+    assert (report / "clips/sphere.mp4").read_bytes() == b"an edited clip this report does not write"
+    assert ReportFolder(report).edited() == ["clips/sphere.mp4"]
+
+
+def test_an_unedited_folder_and_a_deleted_file_are_taken(report):
+    assert ReportFolder(report).edited() == []
+    (report / "summary.csv").unlink()  # deleting a lab file is not editing it
+    _write(ReportFolder(report), NEW)
+    assert _is_new_report(report)
+
+
+def test_a_commit_cut_short_is_taken_by_the_next_run(report, monkeypatch):
+    """A process killed between the renames leaves a pending manifest: each file holds the old or
+    the new bytes, both recorded, so the next run is not refused."""
+    monkeypatch.setattr(outputs._Commit, "_fail", lambda self, step, exc: (_ for _ in ()).throw(SystemExit("killed")))
+    real_replace, calls = os.replace, []
+
+    def replace(src, dst):
+        calls.append(dst)
+        if len(calls) == 3:  # the pending manifest, then one file: then the process "dies"
+            raise OSError(errno.EIO, "killed")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(outputs.os, "replace", replace)
+    with pytest.raises(SystemExit):
+        _write(ReportFolder(report), NEW)
+    monkeypatch.undo()
+    for leftover in report.glob(".gimbal-lab-staging-*"):  # as the next run does once the killed one is gone
+        shutil.rmtree(leftover)
+    assert (report / "claims.md").read_bytes() == NEW["claims.md"] and (report / "summary.csv").read_bytes() == OLD[
+        "summary.csv"]  # mixed, as a kill would leave it
+    assert ReportFolder(report).edited() == []
+    _write(ReportFolder(report), NEW)
+    assert _is_new_report(report)
+
+
+# ------------------------------------------------------------------------------------------------
+# all or nothing
+# ------------------------------------------------------------------------------------------------
+class _FailAt:
+    """Make the ``k``-th call (counting from 1) of the patched file-system functions raise ``error``
+    once; every other call goes through."""
+
+    def __init__(self, k: int, error: OSError):
+        self.k, self.error, self.calls, self.armed = k, error, [], False
+
+    def wrap(self, name, real):
+        def call(*args, **kwargs):
+            if self.armed:
+                self.calls.append(name)
+                if len(self.calls) == self.k:
+                    raise self.error
+            return real(*args, **kwargs)
+        return call
+
+
+def _commit_failing_at(out: Path, k: int, monkeypatch, error=None) -> tuple[_FailAt, BaseException | None]:
+    fail = _FailAt(k, error or OSError(errno.ENOSPC, "No space left on device"))
+    for module, name in ((outputs.os, "replace"), (outputs.os, "link"), (outputs.os, "mkdir"),
+                         (outputs, "_write_file"), (outputs.shutil, "copy2")):
+        monkeypatch.setattr(module, name, fail.wrap(name, getattr(module, name)))
+    caught = None
+    try:
+        with ReportFolder(out, "the report folder").staging() as tmp:
+            for name, data in NEW.items():
+                (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+                (tmp / name).write_bytes(data)
+            fail.armed = True  # count from the commit on
+    except ReportNotWritten as exc:
+        caught = exc
+    finally:
+        fail.armed = False
+        monkeypatch.undo()
+    return fail, caught
+
+
+def test_a_disk_full_error_at_any_step_leaves_the_old_report_or_the_whole_new_one(report, monkeypatch, tmp_path):
+    """ENOSPC injected at every file-system call of the commit in turn (keeping files aside, the
+    pending manifest, each folder made, each rename, the last manifest): after each, the folder is
+    byte for byte as before with a message saying so, or wholly the new report."""
+    before = _snapshot(report)
+    outcomes, k = [], 1
+    while True:
+        out = tmp_path / f"k{k}"
+        shutil.copytree(report, out, symlinks=True)
+        fail, caught = _commit_failing_at(out, k, monkeypatch)
+        if len(fail.calls) < k:  # no call left to fail: the commit ran through
+            assert caught is None and _is_new_report(out)
+            break
+        step = fail.calls[k - 1]
+        if caught is None:  # a failed link falls back to a copy: the commit goes on
+            assert step == "link" and _is_new_report(out), (k, step)
+            outcomes.append("new")
+        else:
+            assert caught.unchanged and _snapshot(out) == before, (k, step, str(caught))
+            assert str(caught).endswith(f"the report folder {out} is as it was before this run (nothing replaced)")
+            assert "\n" not in str(caught) and "No space left on device" in str(caught)
+            outcomes.append("old")
+        k += 1
+    # every kind of step was hit, and most failures fell on a step after which something had changed
+    assert set(fail.calls) == {"link", "mkdir", "replace", "_write_file"}, fail.calls
+    assert outcomes.count("old") >= 8 and len(outcomes) == len(fail.calls)
+
+
+def test_a_folder_in_a_files_place_stops_the_commit_before_anything_changes(report):
+    (report / "summary.csv").unlink()
+    (report / "summary.csv").mkdir()  # e.g. an empty folder named like the lab's table
+    before = _snapshot(report)
+    with pytest.raises(ReportNotWritten) as caught:
+        _write(ReportFolder(report, "the report folder", overwrite_edited=True), NEW)
+    assert caught.value.unchanged and _snapshot(report) == before
+    assert str(caught.value) == (f"the report could not be written: keeping the files it replaces aside failed (a "
+                                 f"folder is where the report's file goes: {report / 'summary.csv'}); the report "
+                                 f"folder {report} is as it was before this run (nothing replaced)")
+
+
+def _immutable(path: Path) -> bool:
+    return subprocess.run(["chattr", "+i", str(path)], capture_output=True).returncode == 0
+
+
+def test_an_immutable_file_rolls_the_whole_report_back(report):
+    target = report / "summary.csv"  # renamed after claims.md and the figure: those are rolled back
+    if shutil.which("chattr") is None or not _immutable(target):
+        pytest.skip("chattr +i is not allowed here (the folder-in-a-file's-place test covers a rename that fails)")
+    try:
+        before = _snapshot(report)
+        with pytest.raises(ReportNotWritten) as caught:
+            _write(ReportFolder(report, "the report folder"), NEW)
+        assert caught.value.unchanged and _snapshot(report) == before
+        assert str(caught.value) == (f"the report could not be written: renaming summary.csv into place failed "
+                                     f"(Operation not permitted); the report folder {report} is as it was before "
+                                     "this run (nothing replaced)")
+    finally:
+        subprocess.run(["chattr", "-i", str(target)], check=True)
+    _write(ReportFolder(report), NEW)  # once the file may change again, the report goes in whole
+    assert _is_new_report(report)
+
+
+def test_when_the_old_files_cannot_be_put_back_the_message_says_where_they_are(report, monkeypatch):
+    real_replace, calls = os.replace, []
+
+    def replace(src, dst):
+        calls.append(Path(dst).name)
+        # the third rename into place fails (disk full), and so does every rename back after it
+        if len(calls) == 4 or (len(calls) > 4 and ".gimbal-lab-staging-" in str(src)):
+            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(outputs.os, "replace", replace)
+    with pytest.raises(ReportNotWritten) as caught:
+        _write(ReportFolder(report, "the report folder"), NEW)
+    monkeypatch.undo()
+    message = str(caught.value)
+    assert not caught.value.unchanged and "\n" not in message
+    aside = message.rsplit("the earlier ones are in ", 1)[1]
+    assert f"the report folder {report} is mixed: 3 file(s) could not be put back (" in message
+    kept = _snapshot(Path(aside))
+    assert kept["claims.md"] == OLD["claims.md"] and kept["figures/fig1.png"] == OLD["figures/fig1.png"]
+
+
+# ------------------------------------------------------------------------------------------------
+# the command line: gimbal-lab run --overwrite-edited
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture
+def fake_paper(monkeypatch):
+    """``gimbal-lab run paper`` with the study's run replaced by one that writes NEW through a
+    ReportFolder made as the studies make theirs (no ``overwrite_edited`` argument)."""
+    from gimbal_lab import runner
+    from gimbal_lab.studies import paper
+
+    def run_study(params, out, **kwargs):
+        folder = ReportFolder(Path(out) / "paper", "the report folder")
+        folder.check()
+        _write(folder, NEW)
+        return {"folder": folder.path, "written": folder.written, "kept": folder.kept}
+
+    monkeypatch.setattr(paper, "run_study", run_study)
+    monkeypatch.setattr(runner, "run", lambda *a, **k: pytest.fail("a run was computed"))
+
+
+def _cli(argv, capsys) -> tuple[int, str]:
+    from gimbal_lab import cli
+
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:
+        status = exc.code
+    return status, capsys.readouterr().err
+
+
+def test_the_command_line_refuses_an_edited_report_and_overwrites_it_when_told(tmp_path, fake_paper, capsys):
+    out = tmp_path / "results"
+    argv = ["run", "paper", "--out", str(out), "--store", str(tmp_path / "store"), "--quiet"]
+    _write(ReportFolder(out / "paper"), OLD)
+    (out / "paper" / "claims.md").write_bytes(b"my own claims")
+    before = _snapshot(out / "paper")
+    status, err = _cli(argv, capsys)
+    assert status == 2 and err == (f"gimbal-lab run: error: the report folder {out / 'paper'}: claims.md was changed "
+                                   f"after gimbal-lab wrote it (its bytes differ from the record in {MANIFEST}); move "
+                                   "it away to keep it, or pass --overwrite-edited to replace it\n")
+    assert _snapshot(out / "paper") == before
+    status, err = _cli(argv + ["--overwrite-edited"], capsys)
+    assert status == 0, err
+    assert _is_new_report(out / "paper")
+
+
+def test_the_command_line_says_the_folder_is_unchanged_when_the_commit_fails(tmp_path, fake_paper, capsys):
+    out = tmp_path / "results"
+    _write(ReportFolder(out / "paper"), OLD)
+    (out / "paper" / "summary.csv").unlink()
+    (out / "paper" / "summary.csv").mkdir()
+    before = _snapshot(out / "paper")
+    status, err = _cli(["run", "paper", "--out", str(out), "--store", str(tmp_path / "store"), "--quiet",
+                        "--overwrite-edited"], capsys)
+    assert status == 1 and err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("gimbal-lab run: error: the report could not be written: keeping the files it replaces aside "
+                          "failed") and err.endswith(f"the report folder {out / 'paper'} is as it was before this run "
+                                                     "(nothing replaced)\n"), err
+    assert _snapshot(out / "paper") == before
