@@ -774,9 +774,10 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     gimbal : gimbal_lab.mavlink.steer.GimbalSteer, optional
         A gimbal to steer on the detections: ``gimbal.frame(n, uv_px, fps)`` is called once per
         frame after the frame's rows are written (the first detection's pixel centre, or None; the
-        source's frame rate); when it returns False (the link is lost) the loop stops as after
-        Ctrl-C. After a Ctrl-C, ``gimbal.unsteered(n, uv_px)`` logs the last kept frame if its
-        ``frame`` call did not. The caller closes it.
+        source's frame rate); when it returns False (the link is lost, or the gimbal's attitude
+        cannot be steered on) the loop stops as after Ctrl-C. After a Ctrl-C,
+        ``gimbal.unsteered(n, uv_px)`` logs the last kept frame if its ``frame`` call did not.
+        The caller closes it.
 
     Returns
     -------

@@ -63,7 +63,11 @@ def add_parsers(subparsers) -> None:
     trk.add_argument("--gimbal-timeout", type=float, default=0.5, metavar="SECONDS",
                      help="stop when the gimbal is silent this long (default 0.5)")
     trk.add_argument("--gimbal-wait", type=float, default=5.0, metavar="SECONDS",
-                     help="how long to wait for the gimbal's first HEARTBEAT (default 5)")
+                     help="how long to wait for the gimbal's first HEARTBEAT, then for its first attitude status "
+                          "(default 5)")
+    trk.add_argument("--gimbal-max-age", type=float, default=0.25, metavar="SECONDS",
+                     help="stop (zero rates, exit 1) when the gimbal's latest attitude status is older than this, "
+                          "or its quaternion is not finite or not of unit norm (default 0.25)")
     trk.set_defaults(func=_track_command, _parser=trk)
 
 
@@ -113,14 +117,14 @@ def _track_command(args, parser) -> int:
     out = Path(args.out)
     try:
         check_writable_folder(out, "--out")
-        for name in ("track.csv", "track.mp4"):
+        for name in ("track.csv", "track.mp4") + (("gimbal.csv",) if args.gimbal is not None else ()):
             if (out / name).is_dir():
                 raise OutputError(f"--out {out}: {name} is a folder; move it away or give another folder")
     except OutputError as exc:
         parser.error(str(exc))
     from . import realworld as rw
 
-    steer = None
+    steer, df = None, None
     try:
         calibration = rw.load_calibration(args.calibration)
         if args.gimbal is not None:
@@ -130,15 +134,15 @@ def _track_command(args, parser) -> int:
     except (FileNotFoundError, ValueError, TypeError) as exc:
         parser.error(str(exc))
     finally:
-        if steer is not None:
-            steer.close()  # zero rates first, while the link works
+        if steer is not None:  # zero rates first, while the link works; gimbal.csv kept with track's files
+            steer.close(keep=df is not None or sys.exc_info()[0] is KeyboardInterrupt)
     a = df.attrs
     if steer is not None:
         state = "stopped (zero rates sent)" if steer.stopped else "not stopped: the link is lost"
         print(f"gimbal {args.gimbal}: {steer.rows} frames steered, {state}; wrote {steer.path}")
-        if steer.lost is not None:
-            print(f"gimbal-lab track: error: the gimbal link is lost, tracking stopped after frame {a['frames'] - 1}: "
-                  f"{steer.lost}", file=sys.stderr)
+        if steer.failure is not None:
+            print(f"gimbal-lab track: error: steering stopped after frame {a['frames'] - 1}: {steer.failure}",
+                  file=sys.stderr)
             return 1
     detected = df.loc[df["target"] != "", "frame"].nunique()
     written = " and ".join(str(p) for p in a["written"])
@@ -156,12 +160,13 @@ def _open_gimbal(args, out, calibration, parser):
         from .mavlink.steer import GimbalSteer
     except ImportError as exc:
         parser.error(f"--gimbal needs the [mavlink] extra (pip install 'gimbal-lab[mavlink]'): {exc}")
-    for name in ("gimbal_timeout", "gimbal_wait"):
+    for name in ("gimbal_timeout", "gimbal_wait", "gimbal_max_age"):
         if not (getattr(args, name) > 0 and math.isfinite(getattr(args, name))):
             parser.error(f"--{name.replace('_', '-')} must be a time > 0 s, got {getattr(args, name)!r}")
     out.mkdir(parents=True, exist_ok=True)
     try:
         return GimbalSteer(args.gimbal, calibration.intrinsics, calibration.distortion, out,
-                           timeout_s=args.gimbal_timeout, discover_timeout_s=args.gimbal_wait)
+                           timeout_s=args.gimbal_timeout, discover_timeout_s=args.gimbal_wait,
+                           max_age_s=args.gimbal_max_age, say=lambda line: print(line, flush=True))
     except (GimbalLinkError, OSError) as exc:
         parser.error(f"--gimbal {args.gimbal}: {exc}")

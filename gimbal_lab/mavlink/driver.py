@@ -118,7 +118,11 @@ class AttitudeReport:
     received_s : float
         ``time.monotonic()`` of this process when the message was parsed, s.
     quaternion : ndarray, shape (4,)
-        Attitude (w, x, y, z) of the gimbal's FRD axes in ``frame`` (normalised float32 values).
+        Attitude (w, x, y, z) of the gimbal's FRD axes in ``frame`` (normalised float32 values);
+        NaN when the received one is not finite or all zero.
+    quaternion_norm : float
+        The norm of the quaternion as received (1 to float32 precision for a valid attitude; NaN
+        when a component is not finite): a device that sends a non-unit attitude is at fault.
     frame : {"vehicle", "earth"}
         The frame of ``quaternion`` and ``angular_velocity_rad_s`` (from the status flags).
     angular_velocity_rad_s : ndarray, shape (3,)
@@ -139,6 +143,7 @@ class AttitudeReport:
     time_s: float
     received_s: float
     quaternion: np.ndarray
+    quaternion_norm: float
     frame: str
     angular_velocity_rad_s: np.ndarray
     flags: int
@@ -295,6 +300,13 @@ class MavlinkGimbal:
         return self._target
 
     @property
+    def last_heard_s(self) -> float | None:
+        """``time.monotonic()`` when the last message of any kind came from the device (None
+        before it was found)."""
+        with self._cond:
+            return self._last_heard_s
+
+    @property
     def lost(self) -> GimbalLinkLost | None:
         """The error that will be raised once the device has been found silent, else None."""
         return self._lost
@@ -377,8 +389,8 @@ class MavlinkGimbal:
 
     def _report(self, msg, now: float) -> AttitudeReport:
         q = np.array(msg.q, dtype=float)
-        norm = float(np.linalg.norm(q))
-        q = q / norm if norm > 0 and np.all(np.isfinite(q)) else np.full(4, _NAN)
+        norm = float(np.linalg.norm(q)) if np.all(np.isfinite(q)) else _NAN
+        q = q / norm if norm > 0 else np.full(4, _NAN)
         frame = frame_of_flags(msg.flags) or "vehicle"
         delta_yaw = float(msg.delta_yaw)
         q_rad = np.full(3, _NAN)
@@ -389,7 +401,7 @@ class MavlinkGimbal:
                 q_vehicle = frames.quaternion_multiply(_yaw_quaternion(-delta_yaw), q)
                 q_rad = frames.quaternion_to_joints(self.kinematics, q_vehicle)
         return AttitudeReport(
-            time_s=msg.time_boot_ms / 1000.0, received_s=now, quaternion=q, frame=frame,
+            time_s=msg.time_boot_ms / 1000.0, received_s=now, quaternion=q, quaternion_norm=norm, frame=frame,
             angular_velocity_rad_s=np.array([msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z],
                                             dtype=float),
             flags=int(msg.flags), failure_flags=int(msg.failure_flags), delta_yaw_rad=delta_yaw,
