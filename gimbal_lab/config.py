@@ -282,6 +282,9 @@ class _Part:
 # ----------------------------------------------------------------------------------------------
 _LENS_NAMES = ("none", "default")
 _BLURS = ("auto", "fast", "subframes", "none")
+_NOISES = ("fixed", "sensor")
+#: The lens a sensor camera assumes when ``f_number`` is not given.
+_DEFAULT_F_NUMBER = 2.8
 #: Largest image motion, px, between two sub-frames of an exposure whose count is derived from its
 #: streak (:meth:`Camera.subframe_count`): consecutive copies of the target overlap to a pixel.
 SUBFRAME_STEP_PX = 1.0
@@ -343,8 +346,21 @@ class Camera(_Part):
     n_subframes : int or None
         Renders averaged over an exposure with ``blur="subframes"``, >= 2; None (the default)
         derives the count of each frame from its streak (:meth:`subframe_count`).
+    noise : {"fixed", "sensor"}
+        How the sensor records a frame: "fixed" (the default) adds Gaussian noise of ``noise_std``
+        grey levels whatever the light and exposure (:func:`gimbal_lab.scene.add_sensor_noise`);
+        "sensor" is the EMVA 1288 model tied to light (:class:`gimbal_lab.sensor.SensorModel`;
+        docs/design.md, "Sensor and light"): ``light_lux`` on the scene, ``sensor``'s figures
+        behind an f/``f_number`` lens, over the camera's ``exposure_s`` (which must be > 0).
     noise_std : float
-        Sensor noise, grey levels (2).
+        The fixed noise, grey levels (2); only with ``noise="fixed"``.
+    light_lux : float or None
+        The scene's illuminance, lx; required with ``noise="sensor"``, refused otherwise.
+    sensor : str or None
+        A built-in sensor's name (:data:`gimbal_lab.sensor.SENSORS`: "IMX273", the default with
+        ``noise="sensor"``); refused with ``noise="fixed"``.
+    f_number : float or None
+        The lens's f-number (2.8 by default with ``noise="sensor"``); refused with ``noise="fixed"``.
     """
 
     width: int | None = None
@@ -359,6 +375,10 @@ class Camera(_Part):
     blur: str = "auto"
     n_subframes: int | None = None
     noise_std: float = 2.0
+    noise: str = "fixed"
+    light_lux: float | None = None
+    sensor: str | None = None
+    f_number: float | None = None
 
     _NAME = "camera"
 
@@ -446,6 +466,7 @@ class Camera(_Part):
             raise ValueError("camera.exposure_s > 0 needs camera.latency_frames >= 1: a frame is detected after its "
                              "exposure, so its detection cannot steer the camera during it")
         self._number("noise_std", low=0.0, high=128.0)
+        self._check_noise()
         self._choice("blur", _BLURS)
         self._number("readout_s", low=0.0, high=1.0 / self.fps)
         fisheye = isinstance(self.lens, KannalaBrandt)
@@ -462,7 +483,37 @@ class Camera(_Part):
                                  f"and camera.exposure_s > 0 (got blur={self.blur!r}, exposure_s={self.exposure_s:g}); "
                                  "leave it None to derive each frame's count from its streak")
 
+    def _check_noise(self) -> None:
+        """The noise fields: each one the chosen model uses, and only those."""
+        from .sensor import SENSORS
+
+        self._choice("noise", _NOISES)
+        light_fields = ("light_lux", "sensor", "f_number")
+        if self.noise == "fixed":
+            given = [name for name in light_fields if getattr(self, name) is not None]
+            if given:
+                raise ValueError(f"camera.{given[0]}={getattr(self, given[0])!r} does nothing with camera.noise='fixed' "
+                                 "(a constant noise_std); set camera.noise='sensor' to tie the noise to the light")
+            return
+        if self.noise_std != Camera.noise_std:
+            raise ValueError(f"camera.noise_std={self.noise_std:g} does nothing with camera.noise='sensor' (the noise "
+                             "comes from light_lux, the sensor and the exposure); leave it at its default")
+        if self.exposure_s <= 0:
+            raise ValueError("camera.noise='sensor' needs camera.exposure_s > 0: the sensor collects light over the "
+                             f"exposure (got exposure_s={self.exposure_s:g})")
+        if self.light_lux is None:
+            raise ValueError("camera.noise='sensor' needs camera.light_lux, the scene's illuminance in lux")
+        self._number("light_lux", low=0.0, high=1e6, low_open=True)
+        if self.sensor is None:
+            self._set("sensor", "IMX273")
+        self._choice("sensor", tuple(SENSORS))
+        if self.f_number is None:
+            self._set("f_number", _DEFAULT_F_NUMBER)
+        self._number("f_number", low=0.5, high=64.0)
+
     def _encode(self, name, value):
+        if name == "noise" and value == "fixed":
+            return None  # the default, left out so that the configs of before the field keep their keys
         if name == "lens" and isinstance(value, (BrownConrady, KannalaBrandt)):
             model = "kannala_brandt" if isinstance(value, KannalaBrandt) else "brown_conrady"
             return {"model": model, **{k: float(v) for k, v in dataclasses.asdict(value).items()}}
@@ -608,7 +659,14 @@ class Camera(_Part):
         return renderer.render(T_world_cam, T_world_target)
 
     def add_noise(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """``image`` as the sensor records it (:func:`gimbal_lab.scene.add_sensor_noise`)."""
+        """``image`` as the sensor records it: the fixed noise
+        (:func:`gimbal_lab.scene.add_sensor_noise`) or, with ``noise="sensor"``, the EMVA 1288 model
+        over the camera's exposure (:meth:`gimbal_lab.sensor.SensorModel.record`)."""
+        if self.noise == "sensor":
+            from .sensor import SensorModel
+
+            model = SensorModel(self.sensor, light_lux=self.light_lux, f_number=self.f_number)
+            return model.record(image, self.exposure_s, rng)
         from .scene import add_sensor_noise
 
         return add_sensor_noise(image, self.noise_std, rng)

@@ -667,3 +667,55 @@ def test_each_draw_of_a_run_comes_from_its_own_stream():
     np.testing.assert_array_equal(plan.position(t), by_hand.position(t))
     other = TrackingConfig(target=Target(trajectory="manoeuvring"), seed=6).path
     assert not np.allclose(other.position(t), plan.position(t))
+
+
+# ----------------------------------------------------------------------------------------------
+# the camera's noise: fixed, or the EMVA 1288 sensor tied to light (docs/design.md, "Sensor and light")
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("fields, message", [
+    (dict(light_lux=300.0), r"camera.light_lux=300.0 does nothing with camera.noise='fixed'"),
+    (dict(sensor="IMX273"), r"camera.sensor='IMX273' does nothing with camera.noise='fixed'"),
+    (dict(f_number=2.8), r"camera.f_number=2.8 does nothing with camera.noise='fixed'"),
+    (dict(noise="sensor", light_lux=300.0), r"camera.noise='sensor' needs camera.exposure_s > 0"),
+    (dict(noise="sensor", exposure_s=0.004), r"camera.noise='sensor' needs camera.light_lux"),
+    (dict(noise="sensor", exposure_s=0.004, light_lux=300.0, noise_std=3.0),
+     r"camera.noise_std=3 does nothing with camera.noise='sensor'"),
+    (dict(noise="sensor", exposure_s=0.004, light_lux=0.0), r"camera.light_lux"),
+    (dict(noise="sensor", exposure_s=0.004, light_lux=300.0, sensor="IMX999"), r"camera.sensor must be one of"),
+    (dict(noise="sensor", exposure_s=0.004, light_lux=300.0, f_number=0.0), r"camera.f_number"),
+    (dict(noise="gaussian"), r"camera.noise must be one of"),
+])
+def test_camera_noise_fields_refuse_what_would_do_nothing(fields, message):
+    with pytest.raises(ValueError, match=message):
+        Camera(**fields)
+
+
+def test_a_fixed_noise_camera_keeps_its_dict_and_key():
+    """noise='fixed' is the default and is left out of the dict, as are the unset light fields, so
+    a config of before the field has the same dict (and store key) as before."""
+    assert set(Camera().to_dict()) == {"width", "height", "hfov_rad", "lens", "fps", "latency_frames", "exposure_s",
+                                       "readout_s", "blur", "noise_std"}
+    assert TrackingConfig().key == TrackingConfig(camera=Camera(noise="fixed")).key
+    assert Camera.from_dict(Camera().to_dict()).noise == "fixed"
+
+
+def test_a_sensor_camera_round_trips_and_records_over_its_exposure():
+    """The scenario file's [camera] says noise, light_lux and sensor; the camera fills in the
+    lens's f/2.8, round-trips through its dict, and add_noise is SensorModel.record over the
+    camera's exposure (the oracle: the model called directly with the same generator state)."""
+    from gimbal_lab.sensor import SensorModel
+
+    table = tomllib.loads('[camera]\nexposure_s = 0.004\nnoise = "sensor"\nlight_lux = 300\nsensor = "IMX273"\n')
+    config = TrackingConfig.from_dict(table)
+    camera = config.camera
+    assert (camera.noise, camera.light_lux, camera.sensor, camera.f_number) == ("sensor", 300.0, "IMX273", 2.8)
+    assert Camera.from_dict(camera.to_dict()) == camera
+    assert TrackingConfig.from_dict(config.to_dict()) == config
+    assert config.key != config.replace(camera=camera.replace(light_lux=30.0)).key
+    image = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    expected = SensorModel("IMX273", light_lux=300.0, f_number=2.8).record(image, 0.004, np.random.default_rng(9))
+    np.testing.assert_array_equal(camera.add_noise(image, np.random.default_rng(9)), expected)
+    # less light, more noise at the same exposure (the fixed camera's noise would not change)
+    flat = np.full((100, 100), 128, np.uint8)
+    dim = camera.replace(light_lux=30.0)
+    assert dim.add_noise(flat, np.random.default_rng(1)).std() > 2 * camera.add_noise(flat, np.random.default_rng(1)).std()

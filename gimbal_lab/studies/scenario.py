@@ -246,7 +246,8 @@ def _part_table(name: str, table, folder: Path, fail) -> dict:
             given = [k for k in _FROM_CALIBRATION if k in table]
             if given:
                 raise fail(name, given[0], "the calibration file gives it", "the camera's other fields beside "
-                           "calibration (fps, latency_frames, exposure_s, readout_s, blur, n_subframes, noise_std)")
+                           "calibration (fps, latency_frames, exposure_s, readout_s, blur, n_subframes, noise_std, "
+                           "noise, light_lux, sensor, f_number)")
             changes = _calibration_changes(text, folder, fail, name, "calibration")
             table.update({k.split(".", 1)[1]: v for k, v in changes.items() if v is not None})
         return _PARTS[name].from_dict(table).to_dict()
