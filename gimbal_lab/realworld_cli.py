@@ -68,6 +68,9 @@ def add_parsers(subparsers) -> None:
     trk.add_argument("--gimbal-max-age", type=float, default=0.25, metavar="SECONDS",
                      help="stop (zero rates, exit 1) when the gimbal's latest attitude status is older than this, "
                           "or its quaternion is not finite or not of unit norm (default 0.25)")
+    trk.add_argument("--signing-key-file", default=None, metavar="FILE",
+                     help="with --gimbal: MAVLink 2 signing key (32 raw bytes or 64 hex characters); sign the commands "
+                          "and refuse packets not signed with it (default: no signing)")
     trk.set_defaults(func=_track_command, _parser=trk)
 
 
@@ -115,6 +118,8 @@ def _track_command(args, parser) -> int:
     from .outputs import OutputError, check_writable_folder
 
     out = Path(args.out)
+    if args.signing_key_file is not None and args.gimbal is None:
+        parser.error("--signing-key-file needs --gimbal ADDRESS (it signs the gimbal link)")
     try:
         check_writable_folder(out, "--out")
         for name in ("track.csv", "track.mp4") + (("gimbal.csv",) if args.gimbal is not None else ()):
@@ -167,6 +172,7 @@ def _open_gimbal(args, out, calibration, parser):
     try:
         return GimbalSteer(args.gimbal, calibration.intrinsics, calibration.distortion, out,
                            timeout_s=args.gimbal_timeout, discover_timeout_s=args.gimbal_wait,
-                           max_age_s=args.gimbal_max_age, say=lambda line: print(line, flush=True))
+                           max_age_s=args.gimbal_max_age, say=lambda line: print(line, flush=True),
+                           signing_key_file=args.signing_key_file)
     except (GimbalLinkError, OSError) as exc:
         parser.error(f"--gimbal {args.gimbal}: {exc}")

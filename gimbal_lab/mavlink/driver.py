@@ -20,6 +20,10 @@ body's FRD frame).
 
 A background thread reads the link, sends the driver's own HEARTBEAT at 1 Hz (a device on
 ``udpin:`` learns where to answer from it) and watches the device's silence.
+
+With a signing key (``signing_key_file``, :mod:`gimbal_lab.mavlink.signing`) the driver signs
+everything it sends and refuses every packet not signed with the same key (counted in
+:attr:`MavlinkGimbal.refused_packets`): a device with another key, or none, is never found.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from ..kinematics import GimbalKinematics
 from . import frames
 from .link import open_link
 from .protocol import GIMBAL_COMPONENT_IDS, STEP_COMMAND, frame_flags, frame_of_flags, mavlink, new_mavlink
+from .signing import enable_signing, read_key, refused_count
 
 __all__ = ["MavlinkGimbal", "AttitudeReport", "GimbalDeviceInfo", "GimbalLinkError", "GimbalNotFound",
            "GimbalLinkLost", "GimbalCommandFailed"]
@@ -214,11 +219,18 @@ class MavlinkGimbal:
         The driver's own MAVLink identity (default: system 1, MAV_COMP_ID_ONBOARD_COMPUTER).
     history : int
         How many reports :meth:`reports` keeps between calls (the oldest are dropped).
+    signing_key_file : str or os.PathLike, optional
+        A MAVLink 2 signing key (32 raw bytes or 64 hexadecimal characters,
+        :func:`gimbal_lab.mavlink.signing.read_key`): sign what the driver sends, refuse what is
+        not signed with it. None: no signing (signed packets are read without a check).
 
     Raises
     ------
     GimbalNotFound
-        No gimbal heard, or no information received, in time.
+        No gimbal heard, or no information received, in time (the message counts the packets
+        refused for their signature: a sign of a wrong or missing key).
+    ValueError
+        The key file cannot be read or holds no key.
 
     Examples
     --------
@@ -234,7 +246,8 @@ class MavlinkGimbal:
     def __init__(self, address, *, baud: int = 115200, target: tuple[int, int] | None = None,
                  request_info: bool = True, kinematics: GimbalKinematics | None = None, lockstep: bool = False,
                  timeout_s: float = 1.0, discover_timeout_s: float = 5.0, system_id: int = 1,
-                 component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER, history: int = 100_000):
+                 component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER, history: int = 100_000,
+                 signing_key_file=None):
         for name, value in (("timeout_s", timeout_s), ("discover_timeout_s", discover_timeout_s)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"{name} must be a finite number > 0 s, got {value!r}")
@@ -246,6 +259,7 @@ class MavlinkGimbal:
             raise TypeError(f"kinematics must be a GimbalKinematics, got {type(kinematics).__name__}")
         if isinstance(history, bool) or not isinstance(history, int) or history < 1:
             raise ValueError(f"history must be an integer >= 1, got {history!r}")
+        key = None if signing_key_file is None else read_key(signing_key_file)
         self.kinematics = kinematics or GimbalKinematics.default()
         self.lockstep = bool(lockstep)
         self.timeout_s = float(timeout_s)
@@ -254,6 +268,9 @@ class MavlinkGimbal:
         self.address = self._link.address
         self._send_lock = threading.Lock()
         self._mav = new_mavlink(_Writer(self._link), system_id, component_id)
+        self.signed = key is not None
+        if self.signed:
+            enable_signing(self._mav, key)
         self._cond = threading.Condition()
         self._target = target
         self._heard: dict[tuple[int, int], int] = {}  # (system, component) -> MAV_TYPE of gimbals heard
@@ -298,6 +315,17 @@ class MavlinkGimbal:
     def target(self) -> tuple[int, int] | None:
         """(system id, component id) of the device."""
         return self._target
+
+    @property
+    def refused_packets(self) -> int:
+        """Packets refused for their signature (unsigned or wrongly signed; 0 without a key)."""
+        return refused_count(self._mav) if self.signed else 0
+
+    def _refusals(self) -> str:
+        """A clause on refused packets for a not-found message ("" when none were refused)."""
+        count = self.refused_packets
+        return (f"; {count} packets were refused for their signature (is the device's signing key this one, and "
+                "does it sign?)" if count else "")
 
     @property
     def last_heard_s(self) -> float | None:
@@ -447,7 +475,7 @@ class MavlinkGimbal:
         if found is None:
             raise GimbalNotFound(f"no gimbal HEARTBEAT (MAV_TYPE_GIMBAL or component {GIMBAL_COMPONENT_IDS[0]}, "
                                  f"{GIMBAL_COMPONENT_IDS[1]}..{GIMBAL_COMPONENT_IDS[-1]}) on {self.address} "
-                                 f"within {timeout_s:g} s")
+                                 f"within {timeout_s:g} s{self._refusals()}")
         with self._cond:
             self._target = found
             self._last_heard_s = time.monotonic()
@@ -491,7 +519,7 @@ class MavlinkGimbal:
                     yaw_limits_rad=(float(msg.yaw_min), float(msg.yaw_max)))
                 return self.info
         raise GimbalNotFound(f"gimbal {system}/{component} on {self.address} sent no GIMBAL_DEVICE_INFORMATION "
-                             f"after {attempts} requests of {timeout_s:g} s each")
+                             f"after {attempts} requests of {timeout_s:g} s each{self._refusals()}")
 
     # ------------------------------------------------------------------ commands
     def send_quaternion(self, q_wxyz, frame: str = "vehicle", angular_velocity_rad_s=None) -> None:

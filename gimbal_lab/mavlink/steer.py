@@ -116,6 +116,9 @@ class GimbalSteer:
     say : callable, optional
         Called with a line of text while connecting: that it waits for a gimbal, and when the
         gimbal is found (the command line prints them).
+    signing_key_file : str or os.PathLike, optional
+        MAVLink 2 signing key for the link (:class:`~gimbal_lab.mavlink.driver.MavlinkGimbal`);
+        None: no signing.
 
     Raises
     ------
@@ -125,7 +128,7 @@ class GimbalSteer:
 
     def __init__(self, address, intrinsics, lens, out_dir, *, timeout_s: float = 0.5, pace: bool = True,
                  max_rate_rad_s: float | None = None, discover_timeout_s: float = 5.0, max_age_s: float = MAX_AGE_S,
-                 say=None):
+                 say=None, signing_key_file=None):
         from ..config import Gimbal
 
         if isinstance(max_age_s, bool) or not isinstance(max_age_s, (int, float)) or not (
@@ -144,7 +147,7 @@ class GimbalSteer:
         say(f"waiting up to {discover_timeout_s:g} s for a gimbal on {address} ...")
         start = time.monotonic()
         self.driver = MavlinkGimbal(address, request_info=False, kinematics=self.kinematics, timeout_s=timeout_s,
-                                    discover_timeout_s=discover_timeout_s)
+                                    discover_timeout_s=discover_timeout_s, signing_key_file=signing_key_file)
         try:
             system, component = self.driver.target
             say(f"gimbal {system}/{component} found on {self.driver.address} after {time.monotonic() - start:.1f} s")
@@ -153,7 +156,7 @@ class GimbalSteer:
             except TimeoutError:
                 raise GimbalNotFound(f"gimbal {system}/{component} on {self.driver.address} sent no attitude status "
                                      f"(GIMBAL_DEVICE_ATTITUDE_STATUS) within {discover_timeout_s:g} s: it cannot be "
-                                     "steered without one") from None
+                                     f"steered without one{self.driver._refusals()}") from None
             self._tmp = temporary_name(self.path)
             self._handle = open(self._tmp, "w", newline="")
         except BaseException:
