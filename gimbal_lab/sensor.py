@@ -62,6 +62,7 @@ __all__ = [
     "WAVELENGTH_M",
     "SensorFigures",
     "SensorModel",
+    "grey_noise_closed_form",
     "photons_per_pixel",
     "snr_closed_form",
 ]
@@ -206,6 +207,15 @@ def snr_closed_form(mean_electrons, dark_noise_e: float, gain_dn_per_e: float):
     """
     mean_electrons = np.asarray(mean_electrons, dtype=float)
     return mean_electrons / np.sqrt(dark_noise_e ** 2 + mean_electrons + QUANTISATION_VAR_DN2 / gain_dn_per_e ** 2)
+
+
+def grey_noise_closed_form(mean_electrons, dark_noise_e: float, gain_dn_per_e: float):
+    """Temporal noise of a pixel in grey levels: sqrt(K²(σ_d² + η μ_p) + σ_q²), DN (away from the clips).
+
+    Parameters as :func:`snr_closed_form`.
+    """
+    mean_electrons = np.asarray(mean_electrons, dtype=float)
+    return np.sqrt(gain_dn_per_e ** 2 * (dark_noise_e ** 2 + mean_electrons) + QUANTISATION_VAR_DN2)
 
 
 def _normal_table() -> np.ndarray:

@@ -219,3 +219,28 @@ def test_emva1288_photon_transfer_recovers_gain_qe_and_dark_noise(monkeypatch):
     assert results.K == pytest.approx(1.0, rel=0.02)
     assert results.QE / 100 == pytest.approx(IMX273.quantum_efficiency, rel=0.02)
     assert results.sigma_d == pytest.approx(IMX273.dark_noise_e, rel=0.05)
+
+
+def test_noise_figure_draws_the_closed_form():
+    """The figure's lines are the closed forms at the auto-gain's K (plotting draws, the sensor computes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gimbal_lab.plotting.sensor import plot_noise_vs_exposure
+
+    exposures_s = np.array([0.001, 0.004])
+    fig = plot_noise_vs_exposure(light_lux=(300.0,), exposures_s=exposures_s, fixed_noise_std=None, simulate=False)
+    ax_snr, ax_dn = fig.axes
+    model = SensorModel(IMX273, light_lux=300.0, f_number=2.8)
+    flat = np.full((200, 200), 128, np.uint8)
+    mean_e = IMX273.quantum_efficiency * photons_per_pixel(300.0, 128 / 255, 2.8, 3.45e-6 ** 2, exposures_s)
+    gains = np.array([model.auto_gain(flat, t) for t in exposures_s])
+    np.testing.assert_allclose(ax_snr.lines[0].get_ydata(), snr_closed_form(mean_e, IMX273.dark_noise_e, gains),
+                               rtol=1e-12)
+    np.testing.assert_allclose(ax_dn.lines[0].get_ydata(),
+                               gains * np.sqrt(IMX273.dark_noise_e ** 2 + mean_e) * np.sqrt(1 + 1 / 12 / (
+                                   gains ** 2 * (IMX273.dark_noise_e ** 2 + mean_e))), rtol=1e-12)
+    np.testing.assert_allclose(ax_snr.lines[0].get_xdata(), exposures_s * 1e3)
+    plt.close(fig)
