@@ -567,9 +567,12 @@ def test_ctrl_c_exits_130_with_a_message():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--status-rate-hz", "0"], "--status-rate-hz must be > 0"),
+    (["--status-rate-hz", "0"], "--status-rate-hz must be in (0, 1000], got 0"),
+    (["--status-rate-hz", "1e9"], "--status-rate-hz must be in (0, 1000], got 1e+09"),
     (["--loss", "1"], "--loss must be in [0, 1)"),
-    (["--latency-s", "-0.1"], "--latency-s must be >= 0"),
+    (["--latency-s", "-0.1"], "--latency-s must be in [0, 10], got -0.1"),
+    (["--latency-s", "1e12"], "--latency-s must be in [0, 10], got 1e+12"),
+    (["--signing-key-file", "/no/such/key"], "--signing-key-file: signing key file /no/such/key: No such file"),
     (["--listen", "tcp:127.0.0.1:1"], "--listen: a link address must be udpin:HOST:PORT"),
     (["--listen", "/dev/no-such-port"], "--listen: cannot open serial port '/dev/no-such-port'"),
     (["--status-rate-hz", "fast"], "argument --status-rate-hz: invalid float value"),
@@ -760,3 +763,89 @@ def test_a_forged_packet_cannot_block_the_real_sender():
     for system in range(1, MAX_STREAMS + 20):
         assert _kinds(receiver, _heartbeat_packet(_stock_signer(key, system=system))) == ["HEARTBEAT"]
     assert len(receiver.signing.stream_timestamps) == MAX_STREAMS
+
+
+def test_signed_device_answers_only_packets_signed_with_its_key():
+    """Over loopback: with a key the device refuses (and counts) unsigned and wrongly signed
+    requests, answers a signed one with packets signed with the key (checked by a stock pymavlink
+    parser holding it), and only the signed sender becomes a client."""
+    key = bytes(range(100, 132))
+    with running_device(signing_key=key) as (device, address, _), sniffer() as sock:
+        port = device.link.local_address[1]
+
+        def request(sender):
+            sock.sendto(sender.command_long_encode(1, 154, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 283, 0, 0, 0, 0, 0,
+                                                   0).pack(sender), ("127.0.0.1", port))
+
+        request(mavlink.MAVLink(None, srcSystem=1, srcComponent=191))
+        request(_stock_signer(bytes(32)))
+        deadline = time.monotonic() + LIVENESS_S
+        while device.packets_refused < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert device.packets_refused == 2 and device.packets_dropped == 2 and device.clients == []
+        request(_stock_signer(key))
+        stock = mavlink.MAVLink(None)
+        stock.signing.secret_key = key
+        while True:
+            data, _ = sock.recvfrom(65535)
+            msgs = [m for m in stock.parse_buffer(data) or () if m.get_type() == "GIMBAL_DEVICE_INFORMATION"]
+            if msgs:
+                break
+        assert msgs[0]._signed and device.clients == [sock.getsockname()]
+
+
+def test_junk_from_another_socket_does_not_starve_the_client():
+    """A real-time device streams 20 statuses a second to its client while another socket sends
+    it a zero byte every 20 ms (before, each datagram's sender took the replies)."""
+    with running_device(lockstep=False, status_rate_hz=20.0) as (device, address, _), sniffer() as sock, \
+            sniffer() as junk:
+        port = device.link.local_address[1]
+        hello = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+        sock.sendto(_heartbeat_packet(hello), ("127.0.0.1", port))
+        parser, statuses = mavlink.MAVLink(None), 0
+        sock.settimeout(0.02)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            junk.sendto(b"\x00", ("127.0.0.1", port))
+            try:
+                data = sock.recv(65535)
+            except socket.timeout:
+                continue
+            statuses += sum(m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS" for m in parser.parse_buffer(data) or ())
+        assert device.packets_dropped > 10 and device.clients == [sock.getsockname()]
+    assert statuses >= 10  # 20 in the second; 10 leaves room for a slow machine
+
+
+def test_clients_are_bounded():
+    from gimbal_lab.mavlink.device import MAX_CLIENTS
+
+    with running_device() as (device, address, _):
+        port = device.link.local_address[1]
+        socks = []
+        try:
+            for i in range(MAX_CLIENTS + 3):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                s.bind(("127.0.0.1", 0))
+                socks.append(s)
+                s.sendto(_heartbeat_packet(mavlink.MAVLink(None, srcSystem=2, srcComponent=191)), ("127.0.0.1", port))
+                deadline = time.monotonic() + LIVENESS_S
+                while s.getsockname() not in device.clients and time.monotonic() < deadline:
+                    time.sleep(0.005)
+            assert device.clients == [s.getsockname() for s in socks[-MAX_CLIENTS:]]
+        finally:
+            for s in socks:
+                s.close()
+
+
+def test_command_line_bounds_are_the_devices():
+    from gimbal_lab.mavlink import cli as device_cli
+    from gimbal_lab.mavlink.device import MAX_LATENCY_S, MAX_STATUS_RATE_HZ
+
+    assert (device_cli._MAX_STATUS_RATE_HZ, device_cli._MAX_LATENCY_S) == (MAX_STATUS_RATE_HZ, MAX_LATENCY_S)
+    with pytest.raises(ValueError, match=r"status_rate_hz must be finite and > 0 and <= 1000, got 1001"):
+        LinkEffects(status_rate_hz=1001)
+    with pytest.raises(ValueError, match=r"latency_s must be finite and >= 0 and <= 10, got 10.5"):
+        LinkEffects(latency_s=10.5)
+    done = subprocess.run(cli("--help"), capture_output=True, text=True, timeout=LIVENESS_S)
+    text = " ".join(done.stdout.split())  # argparse wraps the help
+    assert "status rate, Hz, in (0, 1000]" in text and "commands, s, in [0, 10]" in text

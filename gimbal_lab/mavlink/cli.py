@@ -12,6 +12,10 @@ import math
 import sys
 
 _BODIES = ("still", "hover", "vibration", "flying")
+# LinkEffects' bounds (gimbal_lab.mavlink.device, MAX_STATUS_RATE_HZ and MAX_LATENCY_S; a test pins
+# them equal), written here so that --help works without pymavlink
+_MAX_STATUS_RATE_HZ = 1000.0
+_MAX_LATENCY_S = 10.0
 
 
 def _one_line_errors(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -42,8 +46,10 @@ def add_parsers(sub) -> None:
     p.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--component-id", type=int, default=154, help="MAVLink component id (default 154, MAV_COMP_ID_GIMBAL)")
     p.add_argument("--lockstep", action="store_true", help="advance only on the driver's step command")
-    p.add_argument("--status-rate-hz", type=float, default=20.0, help="attitude status rate, Hz (default 20)")
-    p.add_argument("--latency-s", type=float, default=0.0, help="one-way latency of statuses and commands, s (default 0)")
+    p.add_argument("--status-rate-hz", type=float, default=20.0,
+                   help=f"attitude status rate, Hz, in (0, {_MAX_STATUS_RATE_HZ:g}] (default 20)")
+    p.add_argument("--latency-s", type=float, default=0.0,
+                   help=f"one-way latency of statuses and commands, s, in [0, {_MAX_LATENCY_S:g}] (default 0)")
     p.add_argument("--quantum-deg", type=float, default=0.0,
                    help="resolution of the reported angles, degrees (e.g. 0.1; default 0: none)")
     p.add_argument("--loss", type=float, default=0.0, help="probability that a status is lost, in [0, 1) (default 0)")
@@ -59,6 +65,9 @@ def add_parsers(sub) -> None:
                                                                    "(the lab's yaw; default 0)")
     p.add_argument("--duration-s", type=float, default=3600.0,
                    help="simulated time the device can run, s (default 3600)")
+    p.add_argument("--signing-key-file", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key (32 raw bytes or 64 hex characters): sign what the device sends and "
+                        "refuse unsigned or wrongly signed packets (counted); default: no signing")
     p.set_defaults(func=_gimbal_device_command, _parser=p)
 
 
@@ -70,10 +79,10 @@ def _gimbal_device_command(args, parser) -> int:
     for name in ("status_rate_hz", "latency_s", "quantum_deg", "loss", "duration_s", "body_yaw_deg"):
         if not math.isfinite(getattr(args, name)):
             return bad(f"--{name.replace('_', '-')} must be finite, got {getattr(args, name)}")
-    if args.status_rate_hz <= 0:
-        return bad(f"--status-rate-hz must be > 0, got {args.status_rate_hz:g}")
-    if args.latency_s < 0:
-        return bad(f"--latency-s must be >= 0, got {args.latency_s:g}")
+    if not 0 < args.status_rate_hz <= _MAX_STATUS_RATE_HZ:
+        return bad(f"--status-rate-hz must be in (0, {_MAX_STATUS_RATE_HZ:g}], got {args.status_rate_hz:g}")
+    if not 0 <= args.latency_s <= _MAX_LATENCY_S:
+        return bad(f"--latency-s must be in [0, {_MAX_LATENCY_S:g}], got {args.latency_s:g}")
     if args.quantum_deg < 0:
         return bad(f"--quantum-deg must be >= 0, got {args.quantum_deg:g}")
     if not 0 <= args.loss < 1:
@@ -101,6 +110,14 @@ def _gimbal_device_command(args, parser) -> int:
     from ..platform import BodyMotion
     from .device import DEFAULT_MAX_RATE_RAD_S, LinkEffects, SimulatedGimbalDevice, simulated_gimbal
     from .link import open_link
+    from .signing import read_key
+
+    key = None
+    if args.signing_key_file is not None:
+        try:
+            key = read_key(args.signing_key_file)
+        except ValueError as exc:
+            return bad(f"--signing-key-file: {exc}")
 
     if args.body == "still":
         body = BodyMotion(yaw_rad=math.radians(args.body_yaw_deg))
@@ -122,11 +139,13 @@ def _gimbal_device_command(args, parser) -> int:
         device = SimulatedGimbalDevice(
             link, simulated_gimbal(body=body, duration_s=args.duration_s), effects, lockstep=args.lockstep,
             system_id=args.system_id, component_id=args.component_id,
-            max_rate_rad_s=math.radians(args.max_rate_deg_s) if args.max_rate_deg_s else DEFAULT_MAX_RATE_RAD_S)
+            max_rate_rad_s=math.radians(args.max_rate_deg_s) if args.max_rate_deg_s else DEFAULT_MAX_RATE_RAD_S,
+            signing_key=key)
         print(f"gimbal-device: system {args.system_id} component {args.component_id} on {args.listen}, "
               f"{'lock-step' if args.lockstep else 'real time'}, status {args.status_rate_hz:g} Hz, latency "
               f"{args.latency_s:g} s, quantum {args.quantum_deg:g}°, loss {args.loss:g} (seed {args.seed})"
-              f"{', commanded only' if args.commanded_only else ''}, {args.body} body; Ctrl-C stops", flush=True)
+              f"{', commanded only' if args.commanded_only else ''}, {args.body} body"
+              f"{', signed' if key is not None else ''}; Ctrl-C stops", flush=True)
         reason = device.run()
     except KeyboardInterrupt:
         t = f" at {device.t_s:.3f} s simulated" if device is not None else ""
@@ -136,5 +155,6 @@ def _gimbal_device_command(args, parser) -> int:
     finally:
         link.close()
     print(f"gimbal-device: {reason} at {device.t_s:.3f} s simulated; {device.statuses_sent} statuses sent, "
-          f"{device.statuses_lost} lost", flush=True)
+          f"{device.statuses_lost} lost; {device.packets_dropped} packets dropped "
+          f"({device.packets_refused} refused for their signature)", flush=True)
     return 0

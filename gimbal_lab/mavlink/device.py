@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,14 +62,28 @@ from ..kinematics import GimbalKinematics
 from ..mount import ATTITUDE_GAIN_PER_S, GimbalMount
 from ..platform import BodyMotion
 from . import frames
-from .link import LinkClosed, open_link
+from .link import LinkClosed, UdpLink, open_link
 from .protocol import PROGRESS_PERIOD_S, STEP_COMMAND, frame_of_flags, mavlink, new_mavlink
+from .signing import enable_signing, refused_count
 
 __all__ = ["LinkEffects", "SimulatedGimbalDevice", "simulated_gimbal", "DEFAULT_MAX_RATE_RAD_S",
-           "firmware_version_word"]
+           "firmware_version_word", "MAX_CLIENTS", "MAX_PENDING_COMMANDS", "MAX_COMMAND_RATE_RAD_S",
+           "MAX_STATUS_RATE_HZ", "MAX_LATENCY_S"]
 
 #: The device's joint-rate limit, rad/s (the lab's image loop limits its rates to the same).
 DEFAULT_MAX_RATE_RAD_S = 3.0
+#: UDP peers answered at once: each that sent an accepted packet; beyond this the one heard from
+#: longest ago gives way.
+MAX_CLIENTS = 8
+#: Attitude commands waiting out the link's latency at most; more are refused (and counted).
+MAX_PENDING_COMMANDS = 4096
+#: A commanded angular velocity of larger magnitude, rad/s, is refused as out of range (no gimbal
+#: turns 16 revolutions a second; the device's own joint-rate limit is far below).
+MAX_COMMAND_RATE_RAD_S = 100.0
+#: The status stream's fastest rate, Hz: one status per inner step of 1 ms.
+MAX_STATUS_RATE_HZ = 1000.0
+#: The longest one-way latency, s (a geostationary satellite hop is about 0.25 s).
+MAX_LATENCY_S = 10.0
 _HEARTBEAT_PERIOD_S = 1.0
 _REALTIME_POLL_S = 0.002
 _LOCKSTEP_POLL_S = 0.05
@@ -95,9 +109,10 @@ class LinkEffects:
     Parameters
     ----------
     status_rate_hz : float
-        GIMBAL_DEVICE_ATTITUDE_STATUS per second of simulated time, > 0.
+        GIMBAL_DEVICE_ATTITUDE_STATUS per second of simulated time, in (0, :data:`MAX_STATUS_RATE_HZ`].
     latency_s : float
-        One-way delay of statuses and attitude commands, s, >= 0 (rounded to the inner step).
+        One-way delay of statuses and attitude commands, s, in [0, :data:`MAX_LATENCY_S`] (rounded
+        to the inner step).
     quantum_rad : float
         Resolution of the reported Z-Y-X angles, rad, >= 0 (0: none).
     loss : float
@@ -116,8 +131,9 @@ class LinkEffects:
     commanded_only: bool = False
 
     def __post_init__(self):
-        object.__setattr__(self, "status_rate_hz", _real("status_rate_hz", self.status_rate_hz, 0.0, low_open=True))
-        object.__setattr__(self, "latency_s", _real("latency_s", self.latency_s, 0.0))
+        object.__setattr__(self, "status_rate_hz", _real("status_rate_hz", self.status_rate_hz, 0.0, low_open=True,
+                                                         high=MAX_STATUS_RATE_HZ))
+        object.__setattr__(self, "latency_s", _real("latency_s", self.latency_s, 0.0, high=MAX_LATENCY_S))
         object.__setattr__(self, "quantum_rad", _real("quantum_rad", self.quantum_rad, 0.0))
         loss = _real("loss", self.loss, 0.0)
         if loss >= 1.0:
@@ -165,6 +181,14 @@ def firmware_version_word(version: str) -> int:
     return (patch << 16) | (minor << 8) | major
 
 
+def _whole_number(value, high: int = 2**24) -> int | None:
+    """``value`` (a float command parameter) as an integer in 0..high, or None when it is not one."""
+    v = float(value)
+    if not math.isfinite(v) or v != int(v) or not 0 <= v <= high:
+        return None
+    return int(v)
+
+
 class _Outbox:
     """pymavlink's file: keeps the bytes of the packet just packed (the device routes them)."""
 
@@ -198,20 +222,37 @@ class SimulatedGimbalDevice:
         How often the rate references are recomputed, s (rounded to whole inner steps, >= 1).
     baud : int
         Serial speed, bit/s.
+    signing_key : bytes, optional
+        A 32-byte MAVLink 2 signing key (:mod:`gimbal_lab.mavlink.signing`): sign what the device
+        sends and refuse every packet not signed with it.
 
     Attributes
     ----------
     statuses_sent, statuses_lost : int
         Status messages sampled and put on the link / lost by the loss model.
     commands_applied, commands_rejected : int
-        GIMBAL_DEVICE_SET_ATTITUDE messages that took effect / were refused (both yaw frames set,
-        or a quaternion that is not a rotation).
+        GIMBAL_DEVICE_SET_ATTITUDE messages that took effect / were refused at the wire (both yaw
+        frames set, an infinite quaternion or one that is not a rotation, an infinite rate or one
+        beyond :data:`MAX_COMMAND_RATE_RAD_S`, more than :data:`MAX_PENDING_COMMANDS` waiting).
+    packets_dropped : int
+        Received bytes that were no packet: bad framing or checksum, a packet torn at the end of a
+        datagram, or (with a key) a packet refused for its signature.
+    handler_errors : int
+        Packets whose handling failed unexpectedly (each dropped; the device carries on). Zero
+        unless the device has a bug: the fuzz tests check it stays so.
+
+    Notes
+    -----
+    On ``udpin:`` the device answers its clients, the (at most :data:`MAX_CLIENTS`) peers that
+    sent it an accepted packet, not whoever sent the last datagram: junk, or a packet refused for
+    its signature, neither makes a client nor diverts the replies. Each datagram is parsed on its
+    own (a torn packet at its end is dropped, not joined to the next datagram's bytes).
     """
 
     def __init__(self, link, mount: GimbalMount | None = None, effects: LinkEffects | None = None, *,
                  lockstep: bool = False, system_id: int = 1, component_id: int = mavlink.MAV_COMP_ID_GIMBAL,
                  max_rate_rad_s: float = DEFAULT_MAX_RATE_RAD_S, attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S,
-                 control_period_s: float = 0.002, baud: int = 115200):
+                 control_period_s: float = 0.002, baud: int = 115200, signing_key: bytes | None = None):
         mount = mount if mount is not None else simulated_gimbal()
         if not isinstance(mount, GimbalMount):
             raise TypeError(f"mount must be a GimbalMount, got {type(mount).__name__}")
@@ -238,7 +279,11 @@ class SimulatedGimbalDevice:
         self.link = open_link(link, baud)
         self._outbox = _Outbox()
         self._mav = new_mavlink(self._outbox, system_id, component_id)
+        if signing_key is not None:
+            enable_signing(self._mav, signing_key)
         self.system_id, self.component_id = system_id, component_id
+        self._udp_in = isinstance(self.link, UdpLink) and self.link.kind == "udpin"
+        self._clients: OrderedDict = OrderedDict()  # UDP peers that sent accepted packets, last heard last
         self._rng = np.random.default_rng(effects.seed)
         # the clock and its events, in inner steps
         self._k = 0
@@ -261,6 +306,7 @@ class SimulatedGimbalDevice:
         self._body_cache = None
         self.statuses_sent = self.statuses_lost = 0
         self.commands_applied = self.commands_rejected = 0
+        self.packets_dropped = self.handler_errors = 0
         self._next_heartbeat_wall = 0.0
         self._stepping = None  # lock-step: (first step, last step, next progress wall time) while a step runs
         self._events()
@@ -275,6 +321,16 @@ class SimulatedGimbalDevice:
     def end_step(self) -> int:
         """The last inner step the mount was built for."""
         return self.mount.n_steps
+
+    @property
+    def packets_refused(self) -> int:
+        """Packets refused for their signature (unsigned or wrongly signed; 0 without a key)."""
+        return refused_count(self._mav)
+
+    @property
+    def clients(self) -> list:
+        """The UDP peers (host, port) the device answers, heard from longest ago first (udpin only)."""
+        return list(self._clients)
 
     @property
     def q_rad(self) -> np.ndarray:
@@ -318,7 +374,7 @@ class SimulatedGimbalDevice:
             self._status_n += 1
             self._next_status = self._status_due(self._status_n)
         while self._outgoing and self._outgoing[0][0] <= k:
-            self.link.write(self._outgoing.popleft()[1])
+            self._write(self._outgoing.popleft()[1])
 
     # ------------------------------------------------------------------ the body
     def _body_state(self):
@@ -418,7 +474,17 @@ class SimulatedGimbalDevice:
         return self._outbox.data
 
     def _send_now(self, msg) -> None:
-        self.link.write(self._pack(msg))
+        self._write(self._pack(msg))
+
+    def _write(self, packet: bytes) -> None:
+        """Put ``packet`` on the link: on ``udpin:`` to every client (class Notes)."""
+        if not self._udp_in:
+            self.link.write(packet)
+            return
+        link = self.link
+        for client in self._clients:
+            link.peer = client
+            link.write(packet)
 
     def _time_ms(self) -> int:
         return int(round(self._k * self.dt_s * 1000.0)) & 0xFFFFFFFF
@@ -488,41 +554,79 @@ class SimulatedGimbalDevice:
         return msg.target_system in (0, self.system_id) and msg.target_component in (0, self.component_id)
 
     def handle(self, msg) -> None:
-        """React to one received message (the loops call this; tests may too)."""
+        """React to one received message (the loops call this; tests may too).
+
+        Never raises for what a message holds: every field is checked before use (a refusal is
+        acknowledged or counted); a failure of the device itself is counted in
+        :attr:`handler_errors` and the message dropped. Link failures still raise.
+        """
+        try:
+            self._dispatch(msg)
+        except OSError:
+            raise
+        except Exception:  # noqa: BLE001 - a packet must never end the device (counted; the fuzz tests keep it 0)
+            self.handler_errors += 1
+
+    def _dispatch(self, msg) -> None:
         kind = msg.get_type()
         if kind == "GIMBAL_DEVICE_SET_ATTITUDE" and self._addressed_to_me(msg):
+            if not self._valid_attitude_command(msg) or len(self._incoming) >= MAX_PENDING_COMMANDS:
+                self.commands_rejected += 1
+                return
             self._incoming.append((self._k + self._latency_steps, msg))
             if self._latency_steps == 0:
                 self._events()
-        elif kind == "COMMAND_LONG" and self._addressed_to_me(msg):
+        elif kind in ("COMMAND_LONG", "COMMAND_INT") and self._addressed_to_me(msg):
             self._command(msg)
 
-    def _ack(self, msg, result: int, progress: int = 0) -> None:
-        self._send_now(self._mav.command_ack_encode(msg.command, result, progress, self._time_ms(),
+    @staticmethod
+    def _valid_attitude_command(msg) -> bool:
+        """GIMBAL_DEVICE_SET_ATTITUDE checked at the wire: one yaw frame at most; the quaternion
+        NaN (ignored) or a finite one of norm in (0.5, 2); rates NaN (0) or finite within
+        :data:`MAX_COMMAND_RATE_RAD_S`."""
+        if frame_of_flags(msg.flags) is None:
+            return False
+        q = np.array(msg.q, dtype=float)
+        if np.any(np.isinf(q)):
+            return False
+        if np.all(np.isfinite(q)) and not 0.5 < float(np.linalg.norm(q)) < 2.0:
+            return False
+        omega = np.array([msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z], dtype=float)
+        omega = np.nan_to_num(omega, nan=0.0, posinf=np.inf, neginf=np.inf)
+        return bool(np.all(np.isfinite(omega)) and np.linalg.norm(omega) <= MAX_COMMAND_RATE_RAD_S)
+
+    def _ack(self, msg, result: int, progress: int = 0, result_param2: int = 0) -> None:
+        """COMMAND_ACK to ``msg``'s sender. ``result_param2`` is 0 except for the lock-step command
+        (the clock, ms: :mod:`gimbal_lab.mavlink.protocol`)."""
+        self._send_now(self._mav.command_ack_encode(msg.command, result, progress, result_param2,
                                                     msg.get_srcSystem(), msg.get_srcComponent()))
 
     def _command(self, msg) -> None:
+        """COMMAND_LONG or COMMAND_INT addressed to the device: every one is acknowledged."""
         if msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            if int(msg.param1) == mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION:
+            wanted = _whole_number(msg.param1)
+            if wanted is None:
+                self._ack(msg, mavlink.MAV_RESULT_DENIED)
+            elif wanted == mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION:
                 self._ack(msg, mavlink.MAV_RESULT_ACCEPTED)
                 self._send_now(self.information_message())
             else:
                 self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
-        elif msg.command == STEP_COMMAND:
+        elif msg.command == STEP_COMMAND and msg.get_type() == "COMMAND_LONG":
             duration = float(msg.param1)
-            if not self.lockstep or not (math.isfinite(duration) and duration >= 0):
-                self._ack(msg, mavlink.MAV_RESULT_DENIED)
+            if not self.lockstep or not (math.isfinite(duration) and 0 <= duration <= self.end_step * self.dt_s):
+                self._ack(msg, mavlink.MAV_RESULT_DENIED, result_param2=self._time_ms())
                 return
             k_end = self._k + int(round(duration / self.dt_s))
             if k_end > self.end_step:
-                self._ack(msg, mavlink.MAV_RESULT_DENIED)
+                self._ack(msg, mavlink.MAV_RESULT_DENIED, result_param2=self._time_ms())
                 return
             self._stepping = [msg, self._k, k_end, time.monotonic() + PROGRESS_PERIOD_S]
             try:
                 self.advance_to(k_end)
             finally:
                 self._stepping = None
-            self._ack(msg, mavlink.MAV_RESULT_ACCEPTED, 100)
+            self._ack(msg, mavlink.MAV_RESULT_ACCEPTED, 100, self._time_ms())
         else:
             self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
 
@@ -534,15 +638,36 @@ class SimulatedGimbalDevice:
         if now >= next_progress:
             self._stepping[3] = now + PROGRESS_PERIOD_S
             done = int(100 * (self._k - first) / max(last - first, 1))
-            self._ack(msg, mavlink.MAV_RESULT_IN_PROGRESS, min(done, 99))
+            self._ack(msg, mavlink.MAV_RESULT_IN_PROGRESS, min(done, 99), self._time_ms())
 
     def _receive(self, timeout_s: float) -> None:
-        data = self.link.read(timeout_s)
-        if data:
-            for msg in self._mav.parse_buffer(data) or ():
-                if msg.get_type() != "BAD_DATA" and (msg.get_srcSystem(), msg.get_srcComponent()) != (
-                        self.system_id, self.component_id):
-                    self.handle(msg)
+        link, mav = self.link, self._mav
+        sender = None
+        if self._udp_in:
+            peer = link.peer
+            data = link.read(timeout_s)
+            sender, link.peer = link.peer, peer  # only an accepted packet makes its sender a client
+        else:
+            data = link.read(timeout_s)
+        if not data:
+            return
+        for msg in mav.parse_buffer(data) or ():
+            if msg.get_type() == "BAD_DATA":
+                self.packets_dropped += 1
+            elif (msg.get_srcSystem(), msg.get_srcComponent()) != (self.system_id, self.component_id):
+                if sender is not None:
+                    self._hear(sender)
+                self.handle(msg)
+        if sender is not None and mav.buf_len() > 0:  # a datagram holds whole packets: drop a torn one
+            mav.buf, mav.buf_index, mav.expected_length = bytearray(), 0, mavlink.HEADER_LEN_V1 + 2
+            self.packets_dropped += 1
+
+    def _hear(self, sender) -> None:
+        clients = self._clients
+        clients[sender] = None
+        clients.move_to_end(sender)
+        while len(clients) > MAX_CLIENTS:
+            clients.popitem(last=False)
 
     # ------------------------------------------------------------------ running
     def run(self, stop=None) -> str:
