@@ -616,6 +616,20 @@ class Camera(_Part):
             return self.blur
         return "subframes" if occluded or isinstance(self.lens, KannalaBrandt) else "fast"
 
+    def exposure_label(self, occluded: bool = False) -> str:
+        """The exposure in words, as a report names it: "sharp instants (no exposure)",
+        "exposure 16.0 ms, blurred (fast)", or, for ``blur="none"``, a sentence saying the frames
+        are rendered sharp although the camera exposes."""
+        method = self.blur_method(occluded)
+        if method == "sharp":
+            return "sharp instants (no exposure)"
+        shutter = f", rolling shutter {1000 * self.readout_s:.1f} ms" if self.readout_s > 0 else ""
+        if method == "none":
+            return (f"exposure {1000 * self.exposure_s:.1f} ms rendered SHARP (blur = \"none\": one instant at "
+                    f"mid-exposure, no motion blur){shutter}")
+        count = f", {self.n_subframes} sub-frames" if self.n_subframes else ""
+        return f"exposure {1000 * self.exposure_s:.1f} ms, blurred ({method}{count}){shutter}"
+
     def subframe_count(self, pose_fn, t_s: float, n_samples: int = 17) -> int:
         """The sub-frames a frame exposed from ``t_s`` needs: ``n_subframes`` when given, else
         enough that the image moves at most :data:`SUBFRAME_STEP_PX` between two of them.

@@ -140,3 +140,23 @@ def test_the_frame_tables_streak_is_the_streak_in_the_image(blur, monkeypatch):
     measured = np.array([_measured_streak_px(b, s, background, (u, v), half_px) for b, s, u, v in
                          zip(blurred, sharp, f_blur["true_u_px"], f_blur["true_v_px"])])
     np.testing.assert_allclose(measured, streaks, rtol=0.06, atol=0.6)
+
+
+def test_a_scenario_that_asks_for_sharp_exposures_says_so_in_its_claims(tmp_path):
+    """blur = "none" is allowed in a scenario file, and its report's rig sentence says the frames
+    are rendered sharp although the camera exposes; a blurred one says how it blurs."""
+    import pandas as pd
+
+    text = ('description = "a sharp rig"\n[run]\nreplicates = 2\n[camera]\nexposure_s = 0.01\nblur = "{blur}"\n'
+            '[sweep]\npointing = ["stabilised", "paper"]\n'
+            '[compare.H1]\na = "paper"\nb = "stabilised"\nstatement = "the loop beats the passive camera"\n')
+    said = {}
+    for blur in ("none", "auto"):
+        path = tmp_path / f"{blur}.toml"
+        path.write_text(text.format(blur=blur))
+        scenario = Scenario.from_toml(path)
+        from gimbal_lab.studies.scenario import hypotheses_markdown
+
+        said[blur] = hypotheses_markdown(pd.DataFrame(), pd.DataFrame(), scenario)
+    assert "exposure 10.0 ms rendered SHARP (blur = \"none\"" in said["none"]
+    assert "exposure 10.0 ms, blurred (fast)" in said["auto"] and "SHARP" not in said["auto"]

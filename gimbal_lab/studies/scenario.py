@@ -692,7 +692,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame, scenario:
         f"Read from `{scenario.source or scenario.name}`. The rig: a {K.width} × {K.height} px camera "
         f"(fx {K.fx:.1f} px, fy {K.fy:.1f} px, principal point ({K.cx:.1f}, {K.cy:.1f}) px, "
         f"{math.degrees(base.camera.horizontal_field_rad):.1f}° across; lens {base.camera.lens_label}) at "
-        f"{base.camera.fps:g} frames/s; platform {base.platform.motion}; {base.target.kind} on the "
+        f"{base.camera.fps:g} frames/s, {base.camera.exposure_label(bool(base.target.occluders))}; "
+        f"platform {base.platform.motion}; {base.target.kind} on the "
         f"{base.target.trajectory} path (period {base.target.period_s:g} s); pointing {base.pointing.kind}; "
         f"estimator {base.estimator.sphere_method}, lens {base.estimator.lens_strategy}.",
         "",
