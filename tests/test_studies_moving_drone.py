@@ -321,16 +321,17 @@ def test_markdown_gives_counts_reasons_and_detection_rates():
 
 
 def test_report_writes_tables_verdicts_figures_and_metadata(tmp_path):
-    """A short version of the study (one target and motion, 12 frames a run) through write_report."""
+    """A short version of the study (one target and motion, 12 frames a run) through the report writer."""
     import json
 
     from gimbal_lab.runner import run
+    from gimbal_lab.studies import report
 
     study = md.MovingDroneStudy(replicates=2, fps=10.0, period_s=0.6)
     configs = md.grid(study, targets=("sphere",), motions=("vibration",))
     configs += md.arm_grid(study, targets=("sphere",), motions=("vibration",))
     results = run(configs, jobs=1, progress=False)
-    written = md.write_report(tmp_path, results, study)
+    written = report.write(tmp_path, md.make_report(results, study))
     names = sorted(p.relative_to(tmp_path).as_posix() for p in written)
     for name in ("summary.csv", "replicates.parquet", "replicates.csv", "verdicts.csv", "claims.md", "study.json",
                  "pipelines.csv", "every_pipeline.csv", "gains.csv", "gain_summary.csv", "figures/gains.png",

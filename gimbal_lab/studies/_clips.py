@@ -48,7 +48,7 @@ def _reusable(previous: Path, key: str) -> bool:
             and meta.get("sha256") == hashlib.sha256(data).hexdigest())
 
 
-def write_or_reuse_clip(path, runs, fps: float, frames, previous=None) -> list[Path]:
+def write_or_reuse_clip(path, runs, fps: float, frames, previous=None, progress: bool = False) -> list[Path]:
     """Write the clip of ``runs`` to ``path`` and its sidecar beside it; return both paths.
 
     Parameters
@@ -64,16 +64,22 @@ def write_or_reuse_clip(path, runs, fps: float, frames, previous=None) -> list[P
     previous : path, optional
         The same clip in an earlier report: copied instead of rendered when its sidecar names the
         same key and its bytes match the sidecar's digest.
+    progress : bool
+        Say on stderr whether the clip is copied or rendered.
     """
     from ..runner import ResultsStore, source_hash
     from ..show import write_clip
 
     path = Path(path)
     key = clip_key(runs, fps)
+    from .report import say
+
     if previous is not None and _reusable(Path(previous), key):
+        say(f"clip {path.name}: its runs are unchanged, copied from the earlier report", progress)
         path.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(previous, path)
     else:
+        say(f"clip {path.name}: rendering ...", progress)
         write_clip(path, frames(), fps=fps)
     meta = {"format": CLIP_FORMAT, "key": key, "fps": float(fps), "source_hash": source_hash(),
             "runs": [{"label": r.config.label, "seed": r.config.seed, "store_key": ResultsStore.key(r.config)}

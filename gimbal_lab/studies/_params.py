@@ -9,8 +9,7 @@ import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "write_report_files",
-           "write_study_report", "md_cell", "format_p", "verdict_counts", "verdict_lines", "cpu_seconds_per_frame", "run_frames",
+__all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "md_cell", "format_p", "verdict_counts", "verdict_lines", "cpu_seconds_per_frame", "run_frames",
            "COST_REPEATS"]
 
 #: Environment variable that sets the extension studies' replicate count in their notebooks.
@@ -121,59 +120,6 @@ def report_pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def write_report_files(folder, writers, study_name: str, params: StudyParams, n_runs: int) -> list[Path]:
-    """Write each ``(file name, writer(path))`` of ``writers`` into ``folder``, then ``study.json``
-    (the study, its parameters, the package version and source hash, the number of runs).
-    Returns the paths written."""
-    import json
-
-    from .. import __version__
-    from ..runner import source_hash
-
-    folder = Path(folder)
-    written = []
-    for name, write in writers:
-        write(folder / name)
-        written.append(folder / name)
-    meta = {"study": study_name, "parameters": params.to_dict(), "package_version": __version__,
-            "source_hash": source_hash(), "runs": n_runs}
-    (folder / "study.json").write_text(json.dumps(meta, indent=1))
-    return written + [folder / "study.json"]
-
-
-def write_study_report(folder, results, study: StudyParams, module, figures) -> list[Path]:
-    """An extension study's report in ``folder``: its tables, claims and figures; the paths written.
-
-    ``module`` is the study's module (``NAME``, ``replicate_table``, ``summary_table``,
-    ``check_hypotheses``, ``hypotheses_markdown``). Files: ``summary.csv``, ``replicates.parquet``
-    and ``.csv``, ``verdicts.csv``, ``claims.md``, ``study.json``, and in ``figures/`` what
-    ``figures(save, results, summary)`` draws (``save(fig, name)`` writes PNG and SVG) followed by
-    the forest plot of the verdicts, ``hypotheses_forest``.
-    """
-    from .. import plotting
-
-    plt = report_pyplot()
-    folder = Path(folder)
-    replicates = module.replicate_table(results)
-    summary = module.summary_table(replicates)
-    verdicts = module.check_hypotheses(replicates)
-    written = write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(module.hypotheses_markdown(verdicts, summary, study))),
-    ), module.NAME, study, len(results))
-
-    def save(fig, name):
-        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
-
-    figures(save, results, summary)
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
 
 
 # ----------------------------------------------------------------------------------------------
@@ -357,27 +303,3 @@ def cpu_seconds_per_frame(estimate, images, repeats: int = COST_REPEATS) -> floa
     finally:
         cv2.setNumThreads(threads)
     return best / len(images)
-
-
-def run_and_report(name: str, desc: str, configs, write_report, study, out, *, store=None, executor=None, jobs=None,
-                   progress=True, extra=None) -> dict:
-    """Run ``configs`` (reusing ``store``), then write the report into ``out/name``.
-
-    ``write_report(folder, results, study)`` (and ``extra(folder, results, study)`` when given,
-    e.g. the paper study's clips) write into a staging folder whose files then replace those of
-    ``out/name``, a folder the lab manages (:class:`gimbal_lab.outputs.ReportFolder`): a folder
-    holding files the lab did not write is refused before any run, nothing else is deleted, and
-    files of an earlier report that this one does not write are kept. Returns a dict with the
-    results, the folder, the paths written and the paths kept.
-    """
-    from ..outputs import ReportFolder
-    from ..runner import run
-
-    folder = ReportFolder(Path(out) / name, "the report folder")
-    folder.check()  # before the runs
-    results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc=desc)
-    with folder.staging() as tmp:
-        write_report(tmp, results, study)
-        if extra is not None:
-            extra(tmp, results, study)
-    return {"results": results, "folder": folder.path, "written": folder.written, "kept": folder.kept}

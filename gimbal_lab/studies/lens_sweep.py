@@ -59,6 +59,7 @@ from .. import stats
 from ..camera import BrownConrady, Intrinsics, KannalaBrandt
 from ..config import Camera, Estimator, Platform, Pointing, Target, TrackingConfig, _choice, _number
 from . import _params
+from . import report as _report
 from ._params import StudyParams
 from .paper import replicate_phase_s
 
@@ -66,7 +67,7 @@ __all__ = [
     "LensSweepStudy", "Study", "Lens", "LENSES", "STRATEGIES", "MODES", "TARGETS", "CONES", "FISHEYES",
     "HIGH_DISTORTION", "IN_LIMIT_HALF_ANGLE_RAD", "RATE_FLOOR_PCT", "COST_FLOOR_MS", "COST_REPEATS", "PIPELINES",
     "LENSES_ENV", "grid", "replicate_table", "pipeline_table", "measure_costs", "cost_summary", "summary_table",
-    "check_hypotheses", "hypotheses_markdown", "write_report", "run_study", "cone_pointing_demand", "demand_table",
+    "check_hypotheses", "hypotheses_markdown", "make_report", "run_study", "cone_pointing_demand", "demand_table",
     "example_view", "lens_name", "cone_name", "strategies_for", "methods_for", "lenses_from_env",
 ]
 
@@ -882,64 +883,54 @@ def example_view(study: LensSweepStudy, target: str, lens: str, phase: float = 0
     return image, rectified, config
 
 
-def write_report(folder, results, study: LensSweepStudy, *, costs: pd.DataFrame | None = None, jobs=None,
-                 executor=None, progress: bool = True) -> list[Path]:
-    """Write the tables, hypotheses and figures into ``folder``; return the paths written.
+def make_report(results, study: LensSweepStudy, *, costs: pd.DataFrame | None = None, store=None, jobs=None,
+                executor=None, progress: bool = False) -> _report.Report:
+    """The study's report (:class:`gimbal_lab.studies.report.Report`): its tables, hypotheses and figures.
 
     The CPU costs are measured here (:func:`measure_costs`, on ``jobs`` local processes or
-    ``executor``) unless ``costs`` is given. Files: ``summary.csv``, ``replicates.parquet`` and
-    ``.csv``, ``pipelines.csv``, ``costs.csv``, ``demand.csv``, ``verdicts.csv``, ``claims.md``,
-    ``study.json`` and ``figures/`` (error and detection rate against lens strength per strategy,
-    error against CPU cost per pipeline, the in-limit and over-limit H2 picture, the example frames
-    and rectified views, the forest plot), PNG and SVG.
+    ``executor``) unless ``costs`` is given, once per set of runs when ``store`` is given
+    (:func:`gimbal_lab.studies.report.measured_once`). Files: ``summary.csv``,
+    ``replicates.parquet`` and ``.csv``, ``pipelines.csv``, ``costs.csv``, ``demand.csv``,
+    ``verdicts.csv``, ``claims.md``, ``study.json`` and ``figures/`` (error and detection rate
+    against lens strength per strategy, error against CPU cost per pipeline, the in-limit and
+    over-limit H2 picture, the example frames and rectified views, the forest plot), PNG and SVG.
     """
     from .. import plotting
 
-    plt = _params.report_pyplot()
-    folder = Path(folder)
     replicates = replicate_table(results)
     pipelines = pipeline_table(results)
     if costs is None:
-        costs = measure_costs(results, jobs=jobs, executor=executor, progress=progress)
+        costs = _report.measured_once(
+            store, results, f"CPU time per frame of the lens sweep's pipelines (least of {_params.COST_REPEATS} passes)",
+            lambda: measure_costs(results, jobs=jobs, executor=executor, progress=progress,
+                                  repeats=_params.COST_REPEATS), progress)
     summary = summary_table(replicates)
     verdicts = check_hypotheses(replicates, pipelines, costs)
     demand = demand_table(replicates, study)
-    written = _params.write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
-        ("costs.csv", lambda p: costs.to_csv(p, index=False)),
-        ("demand.csv", lambda p: demand.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, demand, pipelines, costs))),
-    ), NAME, study, len(results))
-
-    def save(fig, name):
-        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
-
-    save(plotting.study.plot_lens_sweep(summary, "mean_abs_error_m"), "lens_sweep_error")
-    save(plotting.study.plot_lens_sweep(summary, "detection_rate_pct"), "lens_sweep_detection")
-    save(plotting.study.plot_lens_error_cost(summary, cost_summary(costs)), "lens_sweep_error_vs_cost")
-    save(plotting.study.plot_lens_h2_limits(replicates, demand), "lens_sweep_h2_limits")
+    figures = [("lens_sweep_error", lambda: plotting.study.plot_lens_sweep(summary, "mean_abs_error_m")),
+               ("lens_sweep_detection", lambda: plotting.study.plot_lens_sweep(summary, "detection_rate_pct")),
+               ("lens_sweep_error_vs_cost", lambda: plotting.study.plot_lens_error_cost(summary, cost_summary(costs))),
+               ("lens_sweep_h2_limits", lambda: plotting.study.plot_lens_h2_limits(replicates, demand))]
     for target in sorted({r.config.target.kind for r in results}, key=TARGETS.index):
-        views = {lens: example_view(study, target, lens)[:2] for lens in _LENS}
-        save(plotting.study.plot_lens_views(views), f"example_views_{target}")
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+        figures.append((f"example_views_{target}", lambda target=target: plotting.study.plot_lens_views(
+            {lens: example_view(study, target, lens)[:2] for lens in _LENS})))
+    return _report.Report(NAME, study, len(results), [
+        ("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+        ("pipelines.csv", pipelines), ("costs.csv", costs), ("demand.csv", demand), ("verdicts.csv", verdicts),
+        ("claims.md", hypotheses_markdown(verdicts, summary, study, demand, pipelines, costs)),
+    ], figures, verdicts)
 
 
 def run_study(study: LensSweepStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid (reusing ``store``), measure the pipelines' CPU costs and write the report to
-    ``out/lens-sweep`` atomically.
+    """Run the grid (reusing ``store``), measure the pipelines' CPU costs (once per set of runs)
+    and write the report to ``out/lens-sweep`` (:func:`gimbal_lab.studies.report.run_and_report`).
 
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
-    Returns a dict with the results, the folder and the paths written.
+    Returns a dict with the results, the verdicts, the folder and the paths written.
     """
-    def write(folder, results, study):
-        return write_report(folder, results, study, jobs=jobs, executor=executor, progress=progress)
+    def report(results, study):
+        return make_report(results, study, store=store, jobs=jobs, executor=executor, progress=progress)
 
-    return _params.run_and_report(NAME, "lens sweep", grid(study), write, study, out, store=store,
+    return _report.run_and_report(NAME, "lens sweep", grid(study), report, study, out, store=store,
                                   executor=executor, jobs=jobs, progress=progress)

@@ -32,11 +32,12 @@ import pandas as pd
 from .. import stats
 from ..config import GimbalLink, TrackingConfig
 from . import _params
+from . import report as _report
 from ._params import StudyParams
 from .paper import PaperStudy
 
 __all__ = ["LinkStudy", "Study", "links", "grid", "replicate_table", "summary_table", "check_hypotheses",
-           "break_even", "hypotheses_markdown", "write_report", "run_study", "FACTORS", "REFERENCE", "WORST",
+           "break_even", "hypotheses_markdown", "make_report", "run_study", "FACTORS", "REFERENCE", "WORST",
            "IN_PROCESS", "PASSIVE", "DESIGNS"]
 
 NAME = "link"
@@ -435,24 +436,29 @@ def plot_factors(summary: pd.DataFrame, metric: str = "distance"):
     return fig
 
 
-def figures(save, results, summary) -> None:
+def make_report(results, study: LinkStudy) -> _report.Report:
+    """The study's report (:class:`gimbal_lab.studies.report.Report`): ``summary.csv``,
+    ``replicates.parquet`` and ``.csv``, ``verdicts.csv``, ``claims.md``, ``study.json`` and in
+    ``figures/`` the advantage and the factors per metric and the forest plot, PNG and SVG."""
+    replicates = replicate_table(results)
+    summary = summary_table(replicates)
+    verdicts = check_hypotheses(replicates)
+    figures = []
     for metric in METRICS:
-        save(plot_advantage(summary, metric), f"advantage_{metric}")
-        save(plot_factors(summary, metric), f"factors_{metric}")
-
-
-def write_report(folder, results, study: LinkStudy):
-    """The report in ``folder`` (:func:`gimbal_lab.studies._params.write_study_report`)."""
-    import sys
-
-    return _params.write_study_report(folder, results, study, sys.modules[__name__], figures)
+        figures += [(f"advantage_{metric}", lambda metric=metric: plot_advantage(summary, metric)),
+                    (f"factors_{metric}", lambda metric=metric: plot_factors(summary, metric))]
+    return _report.Report(NAME, study, len(results), [
+        ("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+        ("verdicts.csv", verdicts), ("claims.md", hypotheses_markdown(verdicts, summary, study)),
+    ], figures, verdicts)
 
 
 def run_study(study: LinkStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid (reusing ``store``) and write the report to ``out/link``.
+    """Run the grid (reusing ``store``) and write the report to ``out/link``
+    (:func:`gimbal_lab.studies.report.run_and_report`).
 
     ``clips`` is accepted for the command line's sake; this study writes figures, not clips.
     """
-    return _params.run_and_report(NAME, "link study", grid(study), write_report, study, out, store=store,
+    return _report.run_and_report(NAME, "link study", grid(study), make_report, study, out, store=store,
                                   executor=executor, jobs=jobs, progress=progress)

@@ -55,6 +55,7 @@ from ..mount import GYRO_NOISE_RAD_S_RTHZ
 from ..platform import WaypointFlight
 from ..config import Camera, Estimator, Gimbal, Platform, Pointing, Target, TrackingConfig, _choice, _number, seed_stream
 from . import _params
+from . import report as _report
 from ._params import StudyParams
 from .paper import replicate_phase_s
 
@@ -83,7 +84,7 @@ __all__ = [
     "summary_table",
     "check_hypotheses",
     "hypotheses_markdown",
-    "write_report",
+    "make_report",
     "run_study",
 ]
 
@@ -694,8 +695,8 @@ def example_runs(results, target: str, motion: str = EXAMPLE_MOTION, shutter: st
     return [runs[m] for m in MOUNTS]
 
 
-def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
-    """Write the tables, hypotheses and figures into ``folder``; return the paths written.
+def make_report(results, study: MovingDroneStudy) -> _report.Report:
+    """The study's report (:class:`gimbal_lab.studies.report.Report`): its tables, hypotheses and figures.
 
     ``results``: the grid's runs and, when run, the arms' (:func:`arm_grid`). Files:
     ``summary.csv``, ``replicates.parquet`` and ``.csv`` (every run, with its ``arm``),
@@ -707,8 +708,6 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     """
     from .. import plotting
 
-    plt = _params.report_pyplot()
-    folder = Path(folder)
     replicates = replicate_table(results)
     summary = summary_table(replicates)
     verdicts = check_hypotheses(replicates)
@@ -716,40 +715,33 @@ def write_report(folder, results, study: MovingDroneStudy) -> list[Path]:
     every = every_pipeline_table(replicates)
     gains = gain_table(replicates)
     shares = gain_summary(gains)
-    written = _params.write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
-        ("every_pipeline.csv", lambda p: every.to_csv(p, index=False)),
-        ("gains.csv", lambda p: gains.to_csv(p, index=False)),
-        ("gain_summary.csv", lambda p: shares.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, shares, every))),
-    ), NAME, study, len(results))
-
-    def save(fig, name):
-        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
-
     full = [r for r in results if arm_of(r.config) == "full"]
-    save(plotting.study.plot_mount_bars(summary), "mount_bars")
-    for target in sorted({r.config.target.kind for r in full}, key=TARGETS.index):
+
+    def example_frames(target):
         runs = example_runs(full, target)
-        frame = int(round(runs[0].config.frames_per_revolution * 1.25))
-        save(plotting.study.plot_mount_frames(runs, frame), f"example_frames_{target}")
+        return plotting.study.plot_mount_frames(runs, int(round(runs[0].config.frames_per_revolution * 1.25)))
+
+    figures = [("mount_bars", lambda: plotting.study.plot_mount_bars(summary))]
+    figures += [(f"example_frames_{target}", lambda target=target: example_frames(target))
+                for target in sorted({r.config.target.kind for r in full}, key=TARGETS.index)]
     if (shares["gain"] != "G_full").any() if len(shares) else False:
-        save(plotting.study.plot_gains(shares[shares["gain"].isin(["G_full", "G_sharp", "G_static"])]), "gains")
-    save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+        figures.append(("gains", lambda: plotting.study.plot_gains(
+            shares[shares["gain"].isin(["G_full", "G_sharp", "G_static"])])))
+    return _report.Report(NAME, study, len(results), [
+        ("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+        ("pipelines.csv", pipelines), ("every_pipeline.csv", every), ("gains.csv", gains),
+        ("gain_summary.csv", shares), ("verdicts.csv", verdicts),
+        ("claims.md", hypotheses_markdown(verdicts, summary, study, pipelines, shares, every)),
+    ], figures, verdicts)
 
 
 def run_study(study: MovingDroneStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid and the arms of the gain's decomposition (reusing ``store``) and write the report to ``out/moving-drone`` atomically.
+    """Run the grid and the arms of the gain's decomposition (reusing ``store``) and write the
+    report to ``out/moving-drone`` (:func:`gimbal_lab.studies.report.run_and_report`).
 
     ``clips`` is accepted for the command line's sake; this study writes example frames, not clips.
-    Returns a dict with the results, the folder and the paths written.
+    Returns a dict with the results, the verdicts, the folder and the paths written.
     """
-    return _params.run_and_report(NAME, "moving drone", all_configs(study), write_report, study, out,
+    return _report.run_and_report(NAME, "moving drone", all_configs(study), make_report, study, out,
                                   store=store, executor=executor, jobs=jobs, progress=progress)

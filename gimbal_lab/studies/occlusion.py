@@ -89,6 +89,7 @@ from ..config import Camera, Pointing, Target, TrackingConfig, _choice, _number
 from ..scene import Occluder, points_visible
 from ..tracking import FILTER_COAST_S
 from . import _params
+from . import report as _report
 from ._params import StudyParams
 from .paper import replicate_phase_s
 
@@ -97,7 +98,7 @@ __all__ = [
     "PIPELINES", "BP_CLAIMS", "DOSE_MARGIN_M", "DOSE_STEP_S", "place_occluder", "hidden_time_s", "dose_time_s",
     "dose_hidden_s", "DosePlacement", "dose_placement", "place_dose_occluder", "dose_table", "occluders_for", "grid",
     "episodes", "timeline_runs", "replicate_table", "pipeline_table", "summary_table", "dose_summary", "nees_band",
-    "check_hypotheses", "hypotheses_markdown", "write_report", "run_study", "example_view",
+    "check_hypotheses", "hypotheses_markdown", "make_report", "run_study", "example_view",
 ]
 
 NAME = "occlusion"
@@ -898,8 +899,8 @@ def example_view(occlusion: str, phase: float = 0.75, hfov_rad: float | None = N
     return image, config
 
 
-def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
-    """Write the tables, hypotheses and figures into ``folder``; return the paths written.
+def make_report(results, study: OcclusionStudy) -> _report.Report:
+    """The study's report (:class:`gimbal_lab.studies.report.Report`): its tables, hypotheses and figures.
 
     Files: ``summary.csv``, ``replicates.parquet`` and ``.csv``, ``pipelines.csv``,
     ``verdicts.csv``, ``doses.csv`` (the manoeuvring target's doses as placed, :func:`dose_table`),
@@ -909,37 +910,25 @@ def write_report(folder, results, study: OcclusionStudy) -> list[Path]:
     """
     from .. import plotting
 
-    plt = _params.report_pyplot()
-    folder = Path(folder)
     replicates = replicate_table(results)
     summary = summary_table(replicates)
     pipelines = pipeline_table(results)
     verdicts = check_hypotheses(replicates, pipelines)
-    written = _params.write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("doses.csv", lambda p: dose_table(study).to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, study, pipelines, replicates))),
-    ), NAME, study, len(results))
-
-    def save(fig, name):
-        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png", "svg")))
-
-    save(plotting.occlusion.plot_occlusion_metrics(summary), "occlusion_metrics")
-    save(plotting.occlusion.plot_occlusion_timelines(timeline_runs(results)), "occlusion_timelines")
-    save(plotting.study.plot_forest(verdicts[verdicts["kind"] != "inside"]).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+    return _report.Report(NAME, study, len(results), [
+        ("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+        ("pipelines.csv", pipelines), ("verdicts.csv", verdicts), ("doses.csv", dose_table(study)),
+        ("claims.md", hypotheses_markdown(verdicts, summary, study, pipelines, replicates)),
+    ], [("occlusion_metrics", lambda: plotting.occlusion.plot_occlusion_metrics(summary)),
+        ("occlusion_timelines", lambda: plotting.occlusion.plot_occlusion_timelines(timeline_runs(results)))],
+        verdicts, forest_rows=verdicts[verdicts["kind"] != "inside"])
 
 
 def run_study(study: OcclusionStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
-    """Run the grid (reusing ``store``) and write the report to ``out/occlusion`` atomically.
+    """Run the grid (reusing ``store``) and write the report to ``out/occlusion``
+    (:func:`gimbal_lab.studies.report.run_and_report`).
 
     ``clips`` is accepted for the command line's sake; this study writes figures, not clips.
     """
-    return _params.run_and_report(NAME, "occlusion", grid(study), write_report, study, out, store=store,
+    return _report.run_and_report(NAME, "occlusion", grid(study), make_report, study, out, store=store,
                                   executor=executor, jobs=jobs, progress=progress)

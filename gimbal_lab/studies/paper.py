@@ -37,8 +37,8 @@ import pandas as pd
 
 from .. import stats
 from ..config import Camera, Estimator, Pointing, Target, TrackingConfig, _number, seed_stream
-from ._params import (StudyParams, format_p, holm_change_lines, md_cell, report_pyplot, verdict_counts, verdict_rule,
-                      write_report_files)
+from . import report as _report
+from ._params import StudyParams, format_p, holm_change_lines, md_cell, verdict_counts, verdict_rule
 
 __all__ = [
     "PaperStudy",
@@ -742,12 +742,14 @@ def claims_markdown(verdicts: pd.DataFrame, replicates: pd.DataFrame | None = No
 # ----------------------------------------------------------------------------------------------
 # the whole study: run, tables, figures
 # ----------------------------------------------------------------------------------------------
-def write_report(folder, results, study: PaperStudy, costs: pd.DataFrame | None = None) -> list[Path]:
-    """Write the study's tables, claims and figures into ``folder``; return the paths written.
+def make_report(results, study: PaperStudy, costs: pd.DataFrame | None = None, store=None,
+                progress: bool = False) -> _report.Report:
+    """The study's report (:class:`gimbal_lab.studies.report.Report`): its tables, claims and figures.
 
     ``results`` are the grid's runs and the known-lens pipelines' (:func:`pipeline_grid`); the
     paper's tables and claims use the grid's, the pipeline table all of them. ``costs``: the
-    pipelines' CPU costs (:func:`pipeline_costs`), measured here when not given.
+    pipelines' CPU costs (:func:`pipeline_costs`), measured here when not given, once per set of
+    runs when ``store`` is given (:func:`gimbal_lab.studies.report.measured_once`).
 
     Files: ``summary.csv`` (per cell), ``replicates.parquet`` and ``.csv`` (per replicate),
     ``frames.parquet`` (every frame), ``pipelines.csv`` (per pipeline and replicate),
@@ -756,45 +758,36 @@ def write_report(folder, results, study: PaperStudy, costs: pd.DataFrame | None 
     forest plot of the claims, as PNG and SVG).
     """
     from .. import plotting
+    from ._params import COST_REPEATS
 
-    plt = report_pyplot()
-    folder = Path(folder)
     study_results = [r for r in results if is_study_run(r.config)]
     replicates = replicate_table(study_results)
     summary = summary_table(replicates)
     pipelines = pipeline_table(results)
-    costs = pipeline_costs(study_results) if costs is None else costs
+    if costs is None:
+        costs = _report.measured_once(store, study_results, f"CPU time per frame of the paper's pipelines (least of "
+                                      f"{COST_REPEATS} passes)", lambda: pipeline_costs(study_results), progress)
     pipelines_summary = pipeline_summary(pipelines, costs) if len(pipelines) else pd.DataFrame()
     verdicts = check_claims(replicates, pipelines)
-    written = write_report_files(folder, (
-        ("summary.csv", lambda p: summary.to_csv(p, index=False)),
-        ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-        ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-        ("frames.parquet", lambda p: frames_table(results).to_parquet(p, index=False)),
-        ("pipelines.csv", lambda p: pipelines.to_csv(p, index=False)),
-        ("pipeline_summary.csv", lambda p: pipelines_summary.to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(claims_markdown(verdicts, replicates, study, pipelines_summary))),
-    ), NAME, study, len(results))
-
-    figures = folder / "figures"
-    save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))
-    save(plotting.study.plot_trajectories(study.period_s).figure, "fig10_trajectories")
+    figures = [("fig10_trajectories", lambda: plotting.study.plot_trajectories(study.period_s))]
     for target, name in (("sphere", "fig11_sphere_error"), ("aruco", "fig13_aruco_error")):
         if (summary["target"] == target).any():
-            save(plotting.study.plot_error_bars(summary, target).figure, name)
+            figures.append((name, lambda target=target: plotting.study.plot_error_bars(summary, target)))
     first = study.seeds[0]
     for (target, dist, traj), name in ((("sphere", "undistorted", "circular"), "fig12_sphere_xyz"),
                                        (("aruco", "distorted", "diagonal"), "fig14_aruco_xyz")):
         for r in study_results:
             c = r.config
             if (c.target.kind, c.camera.lens_label, c.target.trajectory, c.seed) == (target, dist, traj, first):
-                save(plotting.study.plot_xyz(r, revolution=1), f"{name}_{c.pointing.mode}")
+                figures.append((f"{name}_{c.pointing.mode}", lambda r=r: plotting.study.plot_xyz(r, revolution=1)))
     if len(pipelines_summary):
-        save(plotting.study.plot_pipeline_costs(pipelines_summary), "pipelines_error_vs_cost")
-    save(plotting.study.plot_forest(verdicts).figure, "claims_forest")
-    plt.close("all")
-    return written
+        figures.append(("pipelines_error_vs_cost", lambda: plotting.study.plot_pipeline_costs(pipelines_summary)))
+    return _report.Report(NAME, study, len(results), [
+        ("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+        ("frames.parquet", frames_table(results)), ("pipelines.csv", pipelines),
+        ("pipeline_summary.csv", pipelines_summary), ("verdicts.csv", verdicts),
+        ("claims.md", claims_markdown(verdicts, replicates, study, pipelines_summary)),
+    ], figures, verdicts, forest="claims_forest")
 
 
 #: The cell each target's clip shows (the first replicate): the lens and the circle, where the
@@ -831,25 +824,27 @@ def write_clips(folder, results, study: PaperStudy, progress: bool = False, prev
         name = Path("clips") / f"{target}.mp4"
         written += write_or_reuse_clip(Path(folder) / name, (pair["passive"], pair["active"]),
                                        pair["passive"].config.camera.fps, frames,
-                                       previous=None if previous is None else Path(previous) / name)
+                                       previous=None if previous is None else Path(previous) / name,
+                                       progress=progress)
     return written
 
 
 def run_study(study: PaperStudy, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
     """Run the grid and the known-lens pipelines' runs (reusing ``store``) and write the report to
-    ``out/paper`` (:func:`gimbal_lab.studies._params.run_and_report`: only the report's own files
+    ``out/paper`` (:func:`gimbal_lab.studies.report.run_and_report`: only the report's own files
     are replaced).
 
     With ``clips``, also one MP4 per target of a cell's passive and active runs side by side
     (:func:`write_clips`). Returns a dict with the results, the folder, the paths written and
     the files of an earlier report kept (``kept``: the clips after ``clips=False``).
     """
-    from ._params import run_and_report
+    def report(results, study):
+        return make_report(results, study, store=store, progress=progress)
 
     def add_clips(folder, results, study):  # a clip of the report there whose runs are unchanged is reused
         write_clips(folder, results, study, progress=progress, previous=Path(out) / NAME)
 
-    return run_and_report(NAME, "paper study", all_configs(study), write_report, study, out,
-                          store=store, executor=executor, jobs=jobs, progress=progress,
-                          extra=add_clips if clips else None)
+    return _report.run_and_report(NAME, "paper study", all_configs(study), report, study, out,
+                                  store=store, executor=executor, jobs=jobs, progress=progress,
+                                  extra=add_clips if clips else None)

@@ -28,12 +28,13 @@ import pandas as pd
 from .. import stats
 from ..camera import BrownConrady
 from ..config import Camera, Estimator, Pointing, Target, TrackingConfig
-from ._params import StudyParams, format_p, md_cell, report_pyplot, verdict_counts, write_report_files
+from . import report as _report
+from ._params import StudyParams, format_p, md_cell, verdict_counts
 from .paper import PIPELINES, replicate_phase_s
 
 __all__ = ["Factor", "FACTORS", "PIPELINES", "CLAIMS", "PayoffStudy", "unit_design", "design", "point_config",
            "grid", "all_configs", "run_index", "common_frame_errors", "response_table", "point_verdicts",
-           "rank_factors", "Surface", "fit_surface", "write_report", "run_study"]
+           "rank_factors", "Surface", "fit_surface", "make_report", "run_study"]
 
 NAME = "payoff"
 DESCRIPTION = ("the payoff map: where active beats the best passive camera over 8 scene choices "
@@ -518,30 +519,18 @@ def claims_markdown(tables: dict, study: PayoffStudy) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(folder, results, study: PayoffStudy) -> list[Path]:
-    """The map's report in ``folder``: design.csv, responses.csv, points.csv, verdicts.csv,
-    ranking.csv, surfaces.csv, claims.md, study.json and the figures (PNG): Δ against each
-    factor, the ranking, the map with its boundary."""
-    from .. import plotting
-
-    plt = report_pyplot()
-    folder = Path(folder)
+def make_report(results, study: PayoffStudy) -> _report.Report:
+    """The map's report (:class:`gimbal_lab.studies.report.Report`): design.csv, responses.csv,
+    points.csv, verdicts.csv, ranking.csv, surfaces.csv, claims.md, study.json and the figures
+    (PNG): Δ against each factor, the ranking, the map with its boundary."""
     tables = analyse(results, study)
     ranking = pd.concat([tables[f"ranking_{c}"].assign(response=c) for c in ("delta_best", "delta_paper")])
     surfaces = surface_table({c: tables[f"surface_{c}"] for c in ("delta_best", "delta_paper")})
-    written = write_report_files(folder, (
-        ("design.csv", lambda p: design(study).to_csv(p, index=False)),
-        ("responses.csv", lambda p: tables["responses"].to_csv(p, index=False)),
-        ("points.csv", lambda p: tables["points"].to_csv(p, index=False)),
-        ("verdicts.csv", lambda p: tables["verdicts"].to_csv(p, index=False)),
-        ("ranking.csv", lambda p: ranking.to_csv(p, index=False)),
-        ("surfaces.csv", lambda p: surfaces.to_csv(p, index=False)),
-        ("claims.md", lambda p: p.write_text(claims_markdown(tables, study))),
-    ), NAME, study, len(results))
-    for fig, name in figures(tables):
-        written.extend(plotting.save_figure(fig, name, folder / "figures", formats=("png",)))
-    plt.close("all")
-    return written
+    return _report.Report(NAME, study, len(results), [
+        ("design.csv", design(study)), ("responses.csv", tables["responses"]), ("points.csv", tables["points"]),
+        ("verdicts.csv", tables["verdicts"]), ("ranking.csv", ranking), ("surfaces.csv", surfaces),
+        ("claims.md", claims_markdown(tables, study)),
+    ], figures(tables), tables["verdicts"], forest=None, formats=("png",))
 
 
 def factor_axes() -> list[dict]:
@@ -551,25 +540,27 @@ def factor_axes() -> list[dict]:
 
 
 def figures(tables: dict) -> list:
-    """The report's figures as (figure, name): Δ against each factor, the ranking, the map."""
+    """The report's figures as (name, draw): Δ against each factor, the ranking, the map."""
     from ..plotting import payoff as pp
 
     points = tables["points"]
-    out = [(pp.plot_delta_vs_factors(points, factor_axes()).figure, "delta_vs_factors"),
-           (pp.plot_ranking({"Δ best": tables["ranking_delta_best"], "Δ paper": tables["ranking_delta_paper"]},
-                            {f.name: f.label for f in FACTORS}).figure, "ranking")]
-    s = tables["surface_delta_best"]
-    fa, fb = _factor(s.a), _factor(s.b)
-    ua, ub, z = s.grid()
-    out.append((pp.plot_payoff_map(points, fa.name, fb.name, fa.value(ua), fb.value(ub), z,
-                                   xlabel=f"{fa.label} ({fa.unit})", ylabel=f"{fb.label} ({fb.unit})").figure, "map"))
-    return out
+
+    def payoff_map():
+        s = tables["surface_delta_best"]
+        fa, fb = _factor(s.a), _factor(s.b)
+        ua, ub, z = s.grid()
+        return pp.plot_payoff_map(points, fa.name, fb.name, fa.value(ua), fb.value(ub), z,
+                                  xlabel=f"{fa.label} ({fa.unit})", ylabel=f"{fb.label} ({fb.unit})")
+
+    return [("delta_vs_factors", lambda: pp.plot_delta_vs_factors(points, factor_axes())),
+            ("ranking", lambda: pp.plot_ranking({"Δ best": tables["ranking_delta_best"],
+                                                 "Δ paper": tables["ranking_delta_paper"]},
+                                                {f.name: f.label for f in FACTORS})),
+            ("map", payoff_map)]
 
 
 def run_study(study: PayoffStudy, out, *, store=None, executor=None, jobs=None, progress=True, clips=True) -> dict:
     """``gimbal-lab run payoff``: run the map (reusing ``store``) and write its report to
     ``out/payoff``. ``clips`` is accepted for the command's uniformity; the map writes none."""
-    from ._params import run_and_report
-
-    return run_and_report(NAME, "payoff map", grid(study), write_report, study, out, store=store,
-                          executor=executor, jobs=jobs, progress=progress)
+    return _report.run_and_report(NAME, "payoff map", grid(study), make_report, study, out, store=store,
+                                  executor=executor, jobs=jobs, progress=progress)

@@ -29,7 +29,7 @@ factors::
 
 ``gimbal-lab run my-rig.toml`` runs it: the grid of every cell (one level of each factor) times the
 replicates, through :func:`gimbal_lab.runner.run` (the store, resume, Dask, progress), then a report
-written as the studies write theirs (:func:`gimbal_lab.studies._params.write_report_files`):
+written as the studies write theirs (:mod:`gimbal_lab.studies.report`):
 ``claims.md`` with every verdict at both levels (as computed, and after Holm's correction across
 the scenario's family, :func:`gimbal_lab.stats.holm`), the tables, a figure of the error per cell
 with its interval, the forest plot of the verdicts, and a passive | active clip when the scenario
@@ -65,10 +65,11 @@ import pandas as pd
 from .. import stats
 from ..config import _PARTS, Camera, TrackingConfig, _number, seed_stream
 from . import _params
+from . import report as _report
 
 __all__ = ["Scenario", "Study", "NAME", "DESCRIPTION", "SCENARIO_DIR", "SHORTHANDS", "METRICS", "KINDS",
            "shipped_scenarios", "grid", "replicate_table", "summary_table", "check_hypotheses",
-           "hypotheses_markdown", "write_report", "write_clip", "run_study"]
+           "hypotheses_markdown", "make_report", "write_clip", "run_study"]
 
 NAME = "scenario"
 DESCRIPTION = "your own rig: a scenario file (gimbal-lab run FILE.toml; docs/design.md, \"Scenario files\")"
@@ -778,6 +779,7 @@ def write_clip(folder, scenario: Scenario, results, progress: bool = False) -> l
 
     passive, active = pair
     frames = side_by_side(passive, active)
+    _report.say(f"{scenario.name}: rendering the passive | active clip ({passive.config.n_frames} frames) ...", progress)
     if progress:
         from tqdm.auto import tqdm
 
@@ -785,50 +787,38 @@ def write_clip(folder, scenario: Scenario, results, progress: bool = False) -> l
     return [write(Path(folder) / "clips" / "passive-active.mp4", frames, fps=passive.config.camera.fps)]
 
 
-def write_report(folder, results, scenario: Scenario) -> list[Path]:
-    """Write the scenario's tables, claims and figures into ``folder``; return the paths written.
+def make_report(results, scenario: Scenario) -> _report.Report:
+    """The scenario's report (:class:`gimbal_lab.studies.report.Report`): its tables, claims and figures.
 
     Files: ``summary.csv``, ``replicates.parquet`` and ``.csv``, ``verdicts.csv``, ``claims.md``,
     ``scenario.toml`` (the file as read), ``study.json`` and ``figures/`` (``cells``: the error
-    and detection rate per cell with their intervals; ``hypotheses_forest``), PNG and SVG.
+    and detection rate per cell with their intervals; ``hypotheses_forest`` when it has
+    hypotheses), PNG and SVG.
     """
     from .. import plotting
 
-    plt = _params.report_pyplot()
-    folder = Path(folder)
     replicates = replicate_table(scenario, results)
     summary = summary_table(replicates, scenario)
     verdicts = check_hypotheses(scenario, results)
-    writers = [("summary.csv", lambda p: summary.to_csv(p, index=False)),
-               ("replicates.parquet", lambda p: replicates.to_parquet(p, index=False)),
-               ("replicates.csv", lambda p: replicates.to_csv(p, index=False)),
-               ("verdicts.csv", lambda p: verdicts.to_csv(p, index=False)),
-               ("claims.md", lambda p: p.write_text(hypotheses_markdown(verdicts, summary, scenario)))]
+    files = [("summary.csv", summary), ("replicates.parquet", replicates), ("replicates.csv", replicates),
+             ("verdicts.csv", verdicts), ("claims.md", hypotheses_markdown(verdicts, summary, scenario))]
     if scenario.text:
-        writers.append(("scenario.toml", lambda p: p.write_text(scenario.text)))
-    written = _params.write_report_files(folder, writers, scenario.name, scenario, len(results))
-    figures = folder / "figures"
-    save = lambda fig, name: written.extend(plotting.save_figure(fig, name, figures, formats=("png", "svg")))  # noqa: E731
-    save(plotting.scenario.plot_cells(summary), "cells")
-    if len(verdicts):
-        save(plotting.study.plot_forest(verdicts).figure, "hypotheses_forest")
-    plt.close("all")
-    return written
+        files.append(("scenario.toml", scenario.text))
+    return _report.Report(scenario.name, scenario, len(results), files,
+                          [("cells", lambda: plotting.scenario.plot_cells(summary))], verdicts)
 
 
 def run_study(scenario: Scenario, out, *, store=None, executor=None, jobs=None, progress=True,
               clips: bool = True) -> dict:
     """Run the scenario's grid (reusing ``store``) and write its report to ``out/NAME`` (NAME: the
-    scenario's name; :func:`gimbal_lab.studies._params.run_and_report`: only the report's own files
+    scenario's name; :func:`gimbal_lab.studies.report.run_and_report`: only the report's own files
     are replaced), with the passive | active clip when ``clips``.
 
-    Returns a dict with the results, the folder, the paths written and the paths kept.
+    Returns a dict with the results, the verdicts, the folder, the paths written and the paths kept.
     """
-    from ._params import run_and_report
-
     def add_clip(folder, results, scenario):
         write_clip(folder, scenario, results, progress=progress)
 
-    return run_and_report(scenario.name, f"scenario {scenario.name}", grid(scenario), write_report, scenario, out,
-                          store=store, executor=executor, jobs=jobs, progress=progress,
-                          extra=add_clip if clips else None)
+    return _report.run_and_report(scenario.name, f"scenario {scenario.name}", grid(scenario), make_report, scenario,
+                                  out, store=store, executor=executor, jobs=jobs, progress=progress,
+                                  extra=add_clip if clips else None)
