@@ -8,8 +8,9 @@
   thread (the fastest setting with one process per core). Every result a worker returns is checked
   against the config that was sent (same config, a valid frame table) before it is stored.
 * **The results store** (:class:`ResultsStore`): one Parquet frame table and one JSON sidecar
-  (config, package version, source hash, seed, timings, the table's SHA-256) per run, each
-  written atomically (temporary file, then ``os.replace``). An entry is keyed by the config *and*
+  (config, package version, source hash, seed, timings, the table's SHA-256, and a digest of all
+  of these, keyed under ``GIMBAL_LAB_STORE_KEY`` when set) per run, each written atomically
+  (temporary file, then ``os.replace``). An entry is keyed by the config *and*
   a hash of the package's source, so any change to the code recomputes. An entry is served only
   if its table's bytes match the digest in its sidecar and its columns, dtypes and frame times
   fit the config; anything else is moved aside (``NAME.corrupt``), named in a warning and
@@ -26,8 +27,10 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import hashlib
+import hmac
 import json
 import logging
 import os
@@ -49,16 +52,53 @@ import numpy as np
 import pandas as pd
 
 from .outputs import folder_lock as _folder_lock
+from .outputs import is_own_temporary as _is_own_temporary
+from .outputs import unique_tag as _unique_tag
 from .simulation import TrackingConfig, TrackingResult, make_renderer, renderer_key, simulate
 
 __all__ = ["ResultsStore", "RunInterrupted", "SweepFailed", "SourceMismatch", "WorkersDied", "ResultMismatch",
            "StoreError", "run", "source_hash", "dask_executor",
-           "default_store_root", "default_jobs", "checkout_root", "STORE_ENV", "JOBS_ENV"]
+           "default_store_root", "default_jobs", "checkout_root", "STORE_ENV", "JOBS_ENV", "STORE_KEY_ENV"]
 
 log = logging.getLogger(__name__)
 
 #: 2: the sidecar records the table's SHA-256 (``table_sha256``), and tables carry page CRCs.
-STORE_FORMAT = 2
+#: 3: the sidecar also records a digest of all its other fields (``sidecar_digest``): SHA-256, or
+#: HMAC-SHA-256 under :data:`STORE_KEY_ENV`.
+STORE_FORMAT = 3
+#: Environment variable holding a secret key: when set, every sidecar's digest is an HMAC-SHA-256
+#: under it, and only entries sealed with the same key are served (a shared store).
+STORE_KEY_ENV = "GIMBAL_LAB_STORE_KEY"
+
+
+def _store_key() -> bytes | None:
+    value = os.environ.get(STORE_KEY_ENV, "")
+    return value.encode() if value else None
+
+
+def _seal(fields: dict, key: bytes | None) -> dict:
+    """The ``sidecar_digest`` of a sidecar's other ``fields``: over their canonical JSON (sorted
+    keys, no spaces), SHA-256, or HMAC-SHA-256 under ``key``."""
+    body = json.dumps(fields, sort_keys=True, separators=(",", ":")).encode()
+    if key is None:
+        return {"sha256": hashlib.sha256(body).hexdigest()}
+    return {"hmac_sha256": hmac.new(key, body, hashlib.sha256).hexdigest()}
+
+
+def _seal_problem(meta: dict) -> str | None:
+    """Why a parsed sidecar's ``sidecar_digest`` does not vouch for its other fields, or None."""
+    fields = {k: v for k, v in meta.items() if k != "sidecar_digest"}
+    seal, key = meta.get("sidecar_digest"), _store_key()
+    if not isinstance(seal, dict) or not seal:
+        return "records no digest of itself"
+    if "hmac_sha256" in seal and key is None:
+        return f"is sealed with a key ({STORE_KEY_ENV}) that is not set here"
+    if key is not None and "hmac_sha256" not in seal:
+        return f"is not sealed with {STORE_KEY_ENV} (set here: only entries sealed with it are served)"
+    if not hmac.compare_digest(json.dumps(seal, sort_keys=True), json.dumps(_seal(fields, key), sort_keys=True)):
+        what = "its keyed digest (another key, or edited)" if key is not None else "the digest it records"
+        return f"does not match {what}: a field was damaged or edited"
+    return None
 
 
 def _hash_package() -> str:
@@ -312,23 +352,26 @@ def _alive(pid: int, start: int | None = None) -> bool:
 
 
 #: A temporary file of a writer on this machine whose process is gone is removed at once; one of
-#: another machine (a store on a network file system), or of unknown origin, once it is older
-#: than this. A writer keeps its temporary file for the time it takes to write one table
-#: (milliseconds), so an hour is far beyond a write still in progress.
+#: another machine (a store on a network file system) once it is older than this. A writer keeps
+#: its temporary file for the time it takes to write one table (milliseconds), so an hour is far
+#: beyond a write still in progress. Only names the lab made are removed (their check tag fits,
+#: :func:`gimbal_lab.outputs.is_own_temporary`): a user's ``.x~y~1~z.tmp`` is never touched.
 TMP_MAX_AGE_S = 3600.0
 
 
 def _tmp_name(path: Path) -> Path:
-    """A temporary name beside ``path``, unique to this process and call: ``.NAME~HOST~PID~RANDOM.tmp``."""
-    return path.with_name(f".{path.name}~{_HOST}~{os.getpid()}~{secrets.token_hex(6)}.tmp")
+    """A temporary name beside ``path``, unique to this process and call:
+    ``.NAME~HOST~PID~RANDOM~CHECK.tmp``."""
+    return path.with_name(f".{path.name}~{_unique_tag('~')}.tmp")
 
 
 def _stale_tmp(name: str, mtime: float, now: float) -> bool:
     """Is the temporary file ``name`` a leftover of a killed writer (see :data:`TMP_MAX_AGE_S`)?"""
-    if now - mtime > TMP_MAX_AGE_S:
-        return True
-    parts = name[:-len(".tmp")].rsplit("~", 3)
-    return len(parts) == 4 and parts[1] == _HOST and parts[2].isdigit() and not _alive(int(parts[2]))
+    parts = name[:-len(".tmp")].rsplit("~", 4)
+    owner = _is_own_temporary("~".join(parts[1:]), "~") if len(parts) == 5 else None
+    if owner is None:
+        return False  # not a name the lab made
+    return now - mtime > TMP_MAX_AGE_S or (owner[0] == _HOST and not _alive(owner[1]))
 
 
 def _atomic_write(path: Path, data: bytes, mode: int = 0o644) -> None:
@@ -411,8 +454,9 @@ class ResultsStore:
     key = SHA-256 of the config's key (its nested parts and schema version) and :func:`source_hash`. The table is written first, the
     sidecar last, so an entry without a sidecar is incomplete and simply recomputed.
 
-    **What is served.** :meth:`load` reads the sidecar (this format, this source hash, this
-    config), then the table's bytes, whose SHA-256 must equal the sidecar's ``table_sha256``
+    **What is served.** :meth:`load` reads the sidecar (this format; its ``sidecar_digest`` over
+    every other field, the served ``timing`` included; this source hash, this config), then the
+    table's bytes, whose SHA-256 must equal the sidecar's ``table_sha256``
     *before* they are parsed (the parsed bytes are the hashed ones), then checks the table against
     the config (:func:`check_frames`: columns, dtypes, one row per frame, frame numbers and times).
     Anything else is moved aside to ``NAME.corrupt`` (table and sidecar), named in a warning
@@ -424,19 +468,33 @@ class ResultsStore:
     not in the footer (schema, column names, offsets, statistics), nor a page header, nor a whole
     valid file put in another's place (a table copied over another run's carries valid CRCs). The
     digest in the sidecar covers every byte and ties the table to its config, so it is the guard;
-    the CRCs let a table copied out of the store show page damage to any Parquet reader. Measured
+    the CRCs let a table copied out of the store show page damage to any Parquet reader.
+
+    **Keyed digests.** The digests guard against damage and mix-ups, not against someone who can
+    write the store: they can rewrite a table, its ``table_sha256`` and the sidecar's digest
+    alike. With :data:`STORE_KEY_ENV` set (``GIMBAL_LAB_STORE_KEY``, a secret shared by the store's
+    trusted users), each sidecar is sealed with HMAC-SHA-256 under that key, which covers the
+    table's SHA-256 too, and only entries sealed with the same key are served; others are moved
+    aside and recomputed like any damaged entry.
+
+    Measured
     without the digest, on 1,000 random single-bit flips and byte overwrites of one 35 kB table
     (the campaign of ``tests/test_runner.py``): read without CRC verification, 47 loaded as valid
     tables with other numbers; with it, none did, but 396 loaded unchanged (damage in statistics
     or metadata) and the rest failed to parse or failed :func:`check_frames`. With the digest,
     all 1,000 are caught before parsing.
 
-    **Two processes on one store.** A run is computed only by the process that *claims* it: an
-    O_EXCL-created ``runs/<key>.claim`` naming its owner (host, boot, pid, the pid's start time).
+    **Two processes on one store.** A run is computed only by the process that *claims* it: a
+    ``runs/<key>.claim`` naming its owner (host, boot, pid, the pid's start time and executable),
+    written whole under a temporary name and hard-linked into place (which fails if it exists;
+    O_EXCL where links are not allowed), so a claim is never seen half written.
     Others wait for the entry instead of computing it, and take the claim over when it is stale:
     its owner is gone (same machine: the pid no longer runs or is another process; the machine
     restarted), or the claim was not refreshed for :data:`CLAIM_STALE_S` (owners refresh their
     claims every :data:`CLAIM_REFRESH_S` from a thread), which covers an owner on another machine.
+    A claim that is not one the lab writes (not JSON, fields missing or of the wrong type), or that
+    names a live process of this machine running another executable than the one it records
+    (not a gimbal-lab run), is taken over at once with a warning naming it.
     A claim file rather than an ``fcntl`` lock per run because a sweep on a pool holds a claim on
     every run it has queued (hundreds or thousands of them: one open file each would pass the usual
     limit of 1024) and a claim stays visible on disk. A sweep in one process claims one run at a
@@ -473,8 +531,8 @@ class ResultsStore:
     @classmethod
     def default(cls, read: bool = True) -> ResultsStore:
         """The store at :func:`default_store_root`: ``$GIMBAL_LAB_STORE``, else ``results/store`` at
-        the checkout's root (inside the checkout), else in the current folder. The notebooks' store,
-        and ``gimbal-lab run``'s when run from the checkout's root with the default ``--out``."""
+        the checkout's root (inside the checkout), else in the user's cache folder. The notebooks'
+        store, and ``gimbal-lab run``'s without ``--store``."""
         return cls(default_store_root(), read=read)
 
     def __repr__(self) -> str:
@@ -529,7 +587,7 @@ class ResultsStore:
                     if _stale_tmp(name, entry.stat(follow_symlinks=False).st_mtime, now):
                         os.unlink(entry.path)
                         log.info("results store: removed %s, left by a writer that is gone", entry.path)
-                elif name.endswith(".claim"):
+                elif _is_claim_name(name):
                     stale_claims.append(Path(entry.path))
             except OSError:
                 continue  # gone meanwhile, or a store we may only read
@@ -537,9 +595,12 @@ class ResultsStore:
             with contextlib.suppress(OSError):
                 with self._claims_lock():
                     for path in stale_claims:
-                        if _claim_is_stale(path):
+                        stale, why = _claim_verdict(path)
+                        if stale:
                             with contextlib.suppress(OSError):
                                 path.unlink()
+                                if why:
+                                    _warn(f"results store: {path} {why}; removed")
 
     # -- keys and paths -------------------------------------------------------------------------
     @staticmethod
@@ -600,6 +661,9 @@ class ResultsStore:
         if not isinstance(meta, dict) or meta.get("format") != STORE_FORMAT:
             found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
             return None, (sidecar, f"is not a results-store sidecar of format {STORE_FORMAT} (found {found!r})")
+        unsealed = _seal_problem(meta)  # every field it serves (timing too) is under its digest
+        if unsealed is not None:
+            return None, (sidecar, unsealed)
         if meta.get("source_hash") != source_hash() or meta.get("config") != json.loads(json.dumps(config.to_dict())):
             return None, (sidecar, "describes another config or another package source")
         digest = meta.get("table_sha256")
@@ -676,6 +740,8 @@ class ResultsStore:
             "timing": result.timing,
             "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        meta = json.loads(json.dumps(meta))  # as a reader parses it (tuples become lists), then sealed
+        meta["sidecar_digest"] = _seal(meta, _store_key())
         mode = self._entry_mode()
         for path, content in ((table, data), (sidecar, json.dumps(meta, indent=1, sort_keys=True).encode())):
             if path.is_dir() and not path.is_symlink():
@@ -709,21 +775,16 @@ class ResultsStore:
         path = self._claim_path(key)
         token = secrets.token_hex(8)
         record = json.dumps({"host": _HOST, "boot": _BOOT_ID, "pid": os.getpid(), "start": _start_ticks(os.getpid()),
-                             "token": token}).encode()
+                             "exe": _executable(os.getpid()), "token": token}).encode()
         for attempt in range(2):
             try:
-                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-            except FileExistsError:
+                created = self._create_claim(path, record)
+            except OSError as exc:
+                raise StoreError(path, exc) from exc
+            if not created:
                 if attempt == 1 or not self._take_over_if_stale(path):
                     return False
                 continue
-            except OSError as exc:
-                raise StoreError(path, exc) from exc
-            try:
-                os.fchmod(fd, self._entry_mode())
-                os.write(fd, record)
-            finally:
-                os.close(fd)
             with self._claims_guard:
                 self._claims[key] = (path, token)
                 if self._heartbeat is None:
@@ -733,15 +794,48 @@ class ResultsStore:
             return True
         return False
 
+    def _create_claim(self, path: Path, record: bytes) -> bool:
+        """Make the claim file ``path`` holding ``record``, whole, unless it exists (then False):
+        written under a temporary name, then hard-linked into place (``link`` fails on an existing
+        name, as O_EXCL does); where links are not allowed, created with O_EXCL and written."""
+        tmp = _tmp_name(path)
+        try:
+            _atomic_write(tmp, record, self._entry_mode())
+            try:
+                os.link(tmp, path)
+                return True
+            except FileExistsError:
+                return False
+            except OSError as exc:
+                if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.EMLINK, errno.ENOSYS):
+                    raise
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        except FileExistsError:
+            return False
+        try:
+            os.fchmod(fd, self._entry_mode())
+            os.write(fd, record)
+        finally:
+            os.close(fd)
+        return True
+
     def _take_over_if_stale(self, path: Path) -> bool:
         """Remove the claim at ``path`` if it is stale; True if it is gone (removed or released)."""
         try:
             with self._claims_lock():
-                if not _claim_is_stale(path):
+                stale, why = _claim_verdict(path)
+                if not stale:
                     return False
                 with contextlib.suppress(FileNotFoundError):
                     path.unlink()
-                log.info("results store: took over %s, whose owner is gone", path)
+                if why:
+                    _warn(f"results store: {path} {why}; taken over")
+                else:
+                    log.info("results store: took over %s, whose owner is gone", path)
                 return True
         except OSError as exc:
             raise StoreError(path, exc) from exc
@@ -795,23 +889,77 @@ def _read_claim(path: Path) -> dict:
     return owner if isinstance(owner, dict) else {}
 
 
-def _claim_is_stale(path: Path) -> bool:
-    """Is the claim at ``path`` one nobody holds any more (see :class:`ResultsStore`, Notes)?"""
+def _is_claim_name(name: str) -> bool:
+    """Is ``name`` a claim file's name, ``<key>.claim`` with the 24 hex digits of a store key?"""
+    key, dot, suffix = name.partition(".")
+    return suffix == "claim" and len(key) == 24 and all(ch in "0123456789abcdef" for ch in key)
+
+
+def _executable(pid: int) -> str | None:
+    """The executable process ``pid`` runs (Linux /proc), or None where it cannot be read."""
+    try:
+        return os.readlink(f"/proc/{pid}/exe")
+    except OSError:
+        return None
+
+
+def _claim_problem(owner) -> str | None:
+    """Why a parsed claim is not one the lab writes, or None."""
+    if not isinstance(owner, dict):
+        return f"holds {type(owner).__name__}, not a claim's fields"
+    fields = {"host": str, "boot": str, "pid": int, "token": str}
+    for name, kind in fields.items():
+        value = owner.get(name)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            return f"has no valid {name!r}"
+    if owner["pid"] <= 0:
+        return "names no process (pid <= 0)"
+    if owner.get("start") is not None and (not isinstance(owner["start"], int) or isinstance(owner["start"], bool)):
+        return "has no valid 'start'"
+    return None
+
+
+def _claim_verdict(path: Path) -> tuple[bool, str | None]:
+    """Is the claim at ``path`` one nobody holds any more (see :class:`ResultsStore`, Notes)?
+
+    Returns ``(stale, why)``: ``why`` says what is wrong with a claim that is not a gimbal-lab
+    run's (taken over with a warning), None for one whose owner is merely gone, or a live one."""
     try:
         age_s = time.time() - path.stat().st_mtime
+        text = path.read_bytes()
     except FileNotFoundError:
-        return True
+        return True, None
     if age_s > CLAIM_STALE_S:
-        return True
-    owner = _read_claim(path)  # {} while its owner is still writing it: judged by age alone
-    if owner.get("host") != _HOST:
-        return False
-    if owner.get("boot") != _BOOT_ID:
-        return True  # this machine restarted since
-    pid, start = owner.get("pid"), owner.get("start")
-    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
-        return False
-    return not _alive(pid, start if isinstance(start, int) else None)
+        return True, None
+    try:
+        owner = json.loads(text)
+    except ValueError:
+        return True, "is not a claim gimbal-lab wrote (not JSON)"
+    problem = _claim_problem(owner)
+    if problem is not None:
+        return True, f"is not a claim gimbal-lab wrote ({problem})"
+    if owner["host"] != _HOST:
+        return False, None
+    if owner["boot"] != _BOOT_ID:
+        return True, None  # this machine restarted since
+    if not _alive(owner["pid"], owner.get("start")):
+        return True, None
+    recorded, running = owner.get("exe"), _executable(owner["pid"])
+    if isinstance(recorded, str) and running is not None and running != recorded:
+        return True, f"names process {owner['pid']} ({running}), which is not a gimbal-lab run"
+    return False, None
+
+
+def _claim_is_stale(path: Path) -> bool:
+    """Is the claim at ``path`` one nobody holds any more (see :func:`_claim_verdict`)?"""
+    return _claim_verdict(path)[0]
+
+
+def _warn(message: str) -> None:
+    """A warning on :mod:`warnings` and, when it has handlers (the command line's run log), the log."""
+    if log.hasHandlers():
+        log.warning(message)
+    warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -846,20 +994,26 @@ def checkout_root() -> Path | None:
 
 
 def default_store_root() -> Path:
-    """The results store used when none is given, as an absolute path.
+    """The results store used when none is given, as an absolute path: one rule for the notebooks
+    and ``gimbal-lab run`` (whose ``--store DIR`` comes first), whatever the output folder.
 
     1. ``$GIMBAL_LAB_STORE`` when set and not blank (``~`` expanded; a relative path is taken from
        the current folder, which for a notebook is ``notebooks/``: give an absolute one);
     2. else ``results/store`` at the checkout's root (:func:`checkout_root`) when the current
-       folder is inside the checkout: a notebook run from ``notebooks/`` and
-       ``gimbal-lab run paper --out results`` run from the root share one store;
-    3. else ``results/store`` in the current folder (``gimbal-lab run``'s default there).
+       folder is inside the checkout: the notebooks and every ``gimbal-lab run`` there share one
+       store;
+    3. else ``store`` in the user's cache folder (platformdirs' ``user_cache_dir("gimbal-lab")``:
+       ``$XDG_CACHE_HOME/gimbal-lab/store``, by default ``~/.cache/gimbal-lab/store``, on Linux).
     """
     text = os.environ.get(STORE_ENV, "")
     if text.strip():
         return Path(text).expanduser().absolute()
     root = checkout_root()
-    return (root if root is not None else Path.cwd()) / "results" / "store"
+    if root is not None:
+        return root / "results" / "store"
+    from platformdirs import user_cache_dir
+
+    return Path(user_cache_dir("gimbal-lab")).absolute() / "store"
 
 
 def default_jobs() -> int:

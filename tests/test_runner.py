@@ -261,8 +261,9 @@ def test_an_entry_another_process_is_writing_is_left_to_it(tmp_path):
 
 
 def _forge(store: ResultsStore, c: TrackingConfig, frames: pd.DataFrame) -> Path:
-    """Store ``frames`` as the table of ``c`` with a sidecar that agrees (digest and row count), as
-    a writer with a bug would: only the checks of the table against the config can catch it."""
+    """Store ``frames`` as the table of ``c`` with a sidecar that agrees (digest, row count and the
+    sidecar's own digest), as a writer with a bug would: only the checks of the table against the
+    config can catch it."""
     table, sidecar = store.paths(c)
     buffer = io.BytesIO()
     frames.to_parquet(buffer, index=False)
@@ -270,6 +271,8 @@ def _forge(store: ResultsStore, c: TrackingConfig, frames: pd.DataFrame) -> Path
     table.write_bytes(data)
     meta = json.loads(sidecar.read_text())
     meta.update(table_sha256=hashlib.sha256(data).hexdigest(), frames=len(frames))
+    meta.pop("sidecar_digest")
+    meta["sidecar_digest"] = runner._seal(meta, runner._store_key())
     sidecar.write_text(json.dumps(meta))
     return table
 
@@ -510,21 +513,35 @@ def _dead_pid() -> int:
     return dead.pid
 
 
+def _tag(host, pid, check=None) -> str:
+    """The ``HOST~PID~RANDOM~CHECK`` part of a store's temporary name (or one with a wrong check)."""
+    from gimbal_lab import outputs
+
+    core = f"{host}~{pid}~0a1b"
+    return f"{core}~{check or outputs._check_tag(core)}"
+
+
 def test_temporary_files_of_killed_writers_are_removed_and_live_ones_kept(tmp_path):
     store = ResultsStore(tmp_path / "store")
     host, dead, live = runner._HOST, _dead_pid(), os.getppid()
+    assert runner._tmp_name(store.runs / "a.json").name.startswith(f".a.json~{host}~{os.getpid()}~")
     files = {
-        f".a.parquet~{host}~{dead}~0a1b.tmp": False,  # its writer on this machine is gone
-        f".a.parquet~{host}~{live}~0a1b.tmp": True,  # a live writer's
-        f".a.json~otherhost~{dead}~0a1b.tmp": True,  # another machine's: judged by age only
-        ".b.parquet.x1y2z3.tmp": True,  # of unknown origin, recent
-        ".c.parquet.x1y2z3.tmp": False,  # of unknown origin, older than TMP_MAX_AGE_S
-        f".d.parquet~{host}~{live}~0a1b.tmp": False,  # live pid, but older than any write lasts
+        f".a.parquet~{_tag(host, dead)}.tmp": False,  # its writer on this machine is gone
+        f".a.parquet~{_tag(host, live)}.tmp": True,  # a live writer's
+        f".a.json~{_tag('otherhost', dead)}.tmp": True,  # another machine's: judged by age only
+        f".e.json~{_tag('otherhost', dead)}.tmp": False,  # another machine's, older than TMP_MAX_AGE_S
+        f".d.parquet~{_tag(host, live)}.tmp": False,  # live pid, but older than any write lasts
+        # named like the store's temporary files but not made by it (no or a wrong check tag):
+        # never removed, however old or dead their "writer"
+        ".b.parquet.x1y2z3.tmp": True,
+        ".c.parquet.x1y2z3.tmp": True,
+        f".f.parquet~{host}~{dead}~0a1b.tmp": True,
+        f".g.parquet~{_tag(host, dead, 'ffffff')}.tmp": True,
     }
     old_s = time.time() - runner.TMP_MAX_AGE_S - 60
     for name in files:
         (store.runs / name).write_bytes(b"partial")
-        if name.startswith((".c.", ".d.")):
+        if name.startswith((".c.", ".d.", ".e.", ".f.", ".g.")):
             os.utime(store.runs / name, (old_s, old_s))
     ResultsStore(store.root)
     left = {p.name for p in store.runs.iterdir()}
@@ -551,26 +568,34 @@ def test_claims_are_exclusive_and_stale_ones_are_taken_over(tmp_path):
     b.release_all()
     assert not claim.exists()
 
-    live = os.getppid()
-    cases = {
-        "a live process": (_claim_record(pid=live), 0, False),
-        "a dead process": (_claim_record(pid=_dead_pid(), start=None), 0, True),
-        "a reused pid": (_claim_record(pid=live, start=(runner._start_ticks(live) or 0) + 1), 0, True),
-        "this machine before a restart": (_claim_record(pid=live, boot="another boot"), 0, True),
-        "another machine, refreshed": (_claim_record(host="elsewhere"), 0, False),
-        "another machine, not refreshed": (_claim_record(host="elsewhere"), runner.CLAIM_STALE_S + 60, True),
-        "an owner still writing it": ({}, 0, False),
-        "an owner that died writing it": ({}, runner.CLAIM_STALE_S + 60, True),
-    }
-    for name, (record, age_s, stale) in cases.items():
-        claim.write_text(json.dumps(record) if record else "")
-        os.utime(claim, (time.time() - age_s,) * 2)
-        assert a.claim(c) == stale, name
-        assert claim.exists()
-        if stale:
-            assert json.loads(claim.read_text())["pid"] == os.getpid(), name
-            a.release(c)
-            assert not claim.exists()
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # another gimbal-lab run
+    try:
+        exe = runner._executable(live.pid)
+        assert exe is not None and exe == runner._executable(os.getpid())
+        cases = {
+            "a live process": (_claim_record(pid=live.pid, exe=exe), 0, False),
+            "a live process of an older version (no exe)": (_claim_record(pid=live.pid), 0, False),
+            "a dead process": (_claim_record(pid=_dead_pid(), start=None), 0, True),
+            "a reused pid": (_claim_record(pid=live.pid, start=(runner._start_ticks(live.pid) or 0) + 1), 0, True),
+            "this machine before a restart": (_claim_record(pid=live.pid, boot="another boot"), 0, True),
+            "another machine, refreshed": (_claim_record(host="elsewhere"), 0, False),
+            "another machine, not refreshed": (_claim_record(host="elsewhere"), runner.CLAIM_STALE_S + 60, True),
+            "an owner that died writing it": ({}, runner.CLAIM_STALE_S + 60, True),
+        }
+        for name, (record, age_s, stale) in cases.items():
+            claim.write_text(json.dumps(record) if record else "")
+            os.utime(claim, (time.time() - age_s,) * 2)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # an owner that is merely gone is taken over silently
+                assert a.claim(c) == stale, name
+            assert claim.exists()
+            if stale:
+                assert json.loads(claim.read_text())["pid"] == os.getpid(), name
+                a.release(c)
+                assert not claim.exists()
+    finally:
+        live.kill()
+        live.wait()
 
 
 def test_a_claim_held_elsewhere_is_waited_for_then_reused(tmp_path, monkeypatch):
