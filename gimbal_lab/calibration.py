@@ -12,16 +12,17 @@ One reader, :func:`load_calibration`, for the two formats cameras come with:
 
 Rules (each violation is a ValueError naming the file, the node and what is allowed):
 
-* ``distortion_model``: ``plumb_bob``, ``rational_polynomial`` and ``radtan`` are Brown–Conrady
-  (OpenCV order k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, τx, τy]]]]: 4, 5, 8, 12 or
-  14 numbers); ``equidistant`` (or ``fisheye_model: 1``) is Kannala–Brandt (``cv2.fisheye``:
+* ``distortion_model``: ``plumb_bob``, ``rational_polynomial`` and ``radtan`` are OpenCV's pinhole
+  lens (order k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, τx, τy]]]]: 4, 5, 8, 12 or
+  14 numbers), read as Brown–Conrady, or as the rational lens (:class:`~gimbal_lab.camera.Rational`)
+  when k4, k5, k6 are not all 0; ``equidistant`` (or ``fisheye_model: 1``) is Kannala–Brandt (``cv2.fisheye``:
   exactly k1, k2, k3, k4); any other model is refused by name. Without either node the
   coefficients are OpenCV's pinhole ones (Brown–Conrady), except a list of exactly 4, which is
   refused as ambiguous: OpenCV writes both its pinhole k1, k2, p1, p2 and its fisheye
   k1, k2, k3, k4 as 4 numbers, so the file must say which (``distortion_model`` or
   ``fisheye_model``).
-* The lab models k1, k2, p1, p2, k3: the rational (k4–k6), thin-prism (s1–s4) and tilt (τx, τy)
-  terms of 8-, 12- and 14-number lists must be exactly 0, else they are refused by name.
+* The lab models k1, k2, p1, p2, k3 and the rational k4–k6: the thin-prism (s1–s4) and tilt
+  (τx, τy) terms of 12- and 14-number lists must be exactly 0, else they are refused by name.
 * Every entry is a finite number (a quoted string, NaN or inf is refused); ``camera_matrix`` is
   3 × 3 with zero skew, a zero (2, 1) entry, bottom row (0, 0, 1) and fx, fy > 0 (the principal
   point may be anywhere); the image size is two positive integers.
@@ -53,7 +54,7 @@ from typing import NoReturn
 import cv2
 import numpy as np
 
-from .camera import LENS_TYPES, BrownConrady, Intrinsics, KannalaBrandt, UndistortionError, undistort
+from .camera import LENS_TYPES, BrownConrady, Intrinsics, KannalaBrandt, Rational, UndistortionError, undistort
 
 __all__ = [
     "Calibration",
@@ -64,12 +65,12 @@ __all__ = [
     "MAX_IMAGE_SIDE_PX",
 ]
 
-#: ``distortion_model`` names read as Brown–Conrady (OpenCV's pinhole lens model).
+#: ``distortion_model`` names read as OpenCV's pinhole lens: Brown–Conrady, or rational when k4..k6 ≠ 0.
 BROWN_CONRADY_MODELS = ("plumb_bob", "rational_polynomial", "radtan")
 #: ``distortion_model`` names read as Kannala–Brandt (``cv2.fisheye``).
 KANNALA_BRANDT_MODELS = ("equidistant",)
 
-# OpenCV's distortion vector, in order; the lab models the first five.
+# OpenCV's distortion vector, in order; the lab models the first eight.
 _OPENCV_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 _OPENCV_COUNTS = (4, 5, 8, 12, 14)
 
@@ -85,7 +86,7 @@ class Calibration:
     ----------
     intrinsics : Intrinsics
         Focal lengths, principal point and image size (pixels).
-    distortion : BrownConrady, KannalaBrandt or None
+    distortion : BrownConrady, Rational, KannalaBrandt or None
         The lens; None (or an all-zero Brown–Conrady lens) is the ideal pinhole.
     rms_px : float
         RMS reprojection error over every board corner of every view, pixels (NaN when
@@ -101,7 +102,7 @@ class Calibration:
     """
 
     intrinsics: Intrinsics
-    distortion: BrownConrady | KannalaBrandt | None
+    distortion: BrownConrady | Rational | KannalaBrandt | None
     rms_px: float = float("nan")
     views: int = 0
 
@@ -109,7 +110,7 @@ class Calibration:
         if not isinstance(self.intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(self.intrinsics).__name__}")
         if self.distortion is not None and not isinstance(self.distortion, LENS_TYPES):
-            raise TypeError("distortion must be a BrownConrady, a KannalaBrandt or None, "
+            raise TypeError("distortion must be a BrownConrady, a Rational, a KannalaBrandt or None, "
                             f"got {type(self.distortion).__name__}")
         try:
             rms = float(self.rms_px)
@@ -128,7 +129,7 @@ class Calibration:
         return self.intrinsics.size
 
     @property
-    def lens(self) -> BrownConrady | KannalaBrandt | None:
+    def lens(self) -> BrownConrady | Rational | KannalaBrandt | None:
         """The lens for :mod:`gimbal_lab.camera`'s functions: None for an ideal one."""
         d = self.distortion
         return None if d is None or d.is_identity else d
@@ -143,8 +144,9 @@ def save_calibration(path, calibration: Calibration) -> Path:
     """Write a calibration as OpenCV FileStorage (YAML for .yml/.yaml, XML for .xml, JSON for .json).
 
     Nodes: ``image_width``, ``image_height``, ``camera_matrix`` (3 × 3), ``distortion_model``
-    (``plumb_bob``, or ``equidistant`` for a Kannala–Brandt lens), ``distortion_coefficients``
-    (5 × 1 Brown–Conrady, all zero for an ideal lens; 4 × 1 Kannala–Brandt),
+    (``plumb_bob``, ``rational_polynomial`` for a rational lens, or ``equidistant`` for a
+    Kannala–Brandt lens), ``distortion_coefficients`` (5 × 1 Brown–Conrady, all zero for an ideal
+    lens; 8 × 1 rational; 4 × 1 Kannala–Brandt),
     ``avg_reprojection_error`` (px, .Nan when unknown), ``views``, and ``max_field_rad`` for a
     fisheye whose field limit is not the one its coefficients imply. Numbers are written with 17
     significant digits, so :func:`load_calibration` gives back the same doubles.
@@ -167,7 +169,8 @@ def save_calibration(path, calibration: Calibration) -> Path:
         fs.write("image_width", cam.width)
         fs.write("image_height", cam.height)
         fs.write("camera_matrix", cam.K)
-        fs.write("distortion_model", "equidistant" if isinstance(lens, KannalaBrandt) else "plumb_bob")
+        model = {KannalaBrandt: "equidistant", Rational: "rational_polynomial"}.get(type(lens), "plumb_bob")
+        fs.write("distortion_model", model)
         fs.write("distortion_coefficients", lens.coefficients.reshape(-1, 1))
         if isinstance(lens, KannalaBrandt) and lens.max_field_rad != KannalaBrandt(*lens.coefficients).max_field_rad:
             fs.write("max_field_rad", float(lens.max_field_rad))
@@ -343,7 +346,7 @@ def _model(f: _File) -> str | None:
     return named
 
 
-def _lens(f: _File) -> BrownConrady | KannalaBrandt | None:
+def _lens(f: _File) -> BrownConrady | Rational | KannalaBrandt | None:
     model = _model(f)
     read = f.matrix("distortion_coefficients")
     if read is None:
@@ -376,16 +379,18 @@ def _lens(f: _File) -> BrownConrady | KannalaBrandt | None:
     if values.size not in _OPENCV_COUNTS:
         f.fail("distortion_coefficients", f"{values.size} numbers",
                "4, 5, 8, 12 or 14 (OpenCV's k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]])")
-    extra = {name: float(v) for name, v in zip(_OPENCV_NAMES[5:], values[5:]) if v != 0}
+    extra = {name: float(v) for name, v in zip(_OPENCV_NAMES[8:], values[8:]) if v != 0}
     if extra:
         shown = ", ".join(f"{name} = {v!r}" for name, v in extra.items())
         f.fail("distortion_coefficients", f"{shown} not zero",
-               "k1, k2, p1, p2, k3 (the lab's Brown–Conrady lens); OpenCV's rational k4-k6, thin-prism s1-s4 "
+               "k1, k2, p1, p2, k3 (Brown–Conrady) and k4, k5, k6 (rational); OpenCV's thin-prism s1-s4 "
                "and tilt tau_x, tau_y terms must be exactly 0")
-    k1, k2, p1, p2 = values[:4]
-    k3 = values[4] if values.size > 4 else 0.0
+    named = dict(zip(_OPENCV_NAMES[:8], np.concatenate((values[:8], np.zeros(8 - min(values.size, 8))))))
     try:
-        lens = BrownConrady(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
+        if any(named[k] != 0 for k in ("k4", "k5", "k6")):
+            lens = Rational(**named)
+        else:
+            lens = BrownConrady(**{k: named[k] for k in ("k1", "k2", "p1", "p2", "k3")})
     except ValueError as exc:
         f.fail("distortion_coefficients", str(exc), "coefficients whose fold radius is computable")
     return None if lens.is_identity else lens
@@ -417,7 +422,7 @@ def _fold_inside_image(intrinsics: Intrinsics, lens) -> str | None:
         return None
     corner = max(math.hypot(u / cam.fx, v / cam.fy) for u in us for v in vs)
     r_fold = lens.radial_limit()
-    top = lens.radial_image(r_fold) if math.isfinite(r_fold) else math.inf
+    top = lens.disc_image()
     if top <= corner:
         return (f"the lens folds inside the image: its radial map stops rising at undistorted radius {r_fold:.6g}, "
                 f"distorted radius {top:.6g}, but the image corner lies at distorted radius {corner:.6g} "

@@ -1,4 +1,4 @@
-"""Pinhole camera with Brown–Conrady or Kannala–Brandt (fisheye) lens distortion.
+"""Pinhole camera with Brown–Conrady, rational or Kannala–Brandt (fisheye) lens distortion.
 
 Conventions (stated once, pinned by tests against ``cv2.projectPoints``):
 
@@ -13,13 +13,20 @@ Conventions (stated once, pinned by tests against ``cv2.projectPoints``):
       x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²)
       y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y
 
+* The rational lens (:class:`Rational`, OpenCV's ``CALIB_RATIONAL_MODEL``, ROS's
+  ``rational_polynomial``) divides the radial factor by a second polynomial, with OpenCV's order
+  (k1, k2, p1, p2, k3, k4, k5, k6)::
+
+      L(r) = (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶)
+      x_d = x L(r) + 2 p1 x y + p2 (r² + 2 x²),  y_d = y L(r) + p1 (r² + 2 y²) + 2 p2 x y
+
 * Fisheye lenses follow OpenCV's ``cv2.fisheye`` (Kannala–Brandt) convention: a ray at angle θ
   from the optical axis lands at distance θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) from the
   principal point (normalised), along the ray's own azimuth. θ may exceed 90° (a 185° lens), so
   :func:`project` takes it from the 3-D direction, θ = atan2(√(x² + y²), z), and
   :func:`backproject` returns unit rays for such a lens.
 
-Both lens models are accepted wherever a lens is: :func:`distort`, :func:`undistort`,
+Every lens model is accepted wherever a lens is: :func:`distort`, :func:`undistort`,
 :func:`project`, :func:`backproject`, :func:`undistort_pixels`, :func:`distort_pixels`.
 
 Notes
@@ -44,6 +51,7 @@ __all__ = [
     "Intrinsics",
     "BrownConrady",
     "KannalaBrandt",
+    "Rational",
     "LENS_TYPES",
     "project",
     "distort",
@@ -345,6 +353,113 @@ class BrownConrady:
         """Distorted radius r·L(r) of undistorted radius ``r`` (normalised; the radial part alone)."""
         return float(_radial_map(np.asarray(float(r)), self)[0])
 
+    def disc_image(self) -> float:
+        """The largest distorted radius with a preimage in the monotonic disc: r·L(r) at
+        :meth:`radial_limit` (``inf`` when the map rises everywhere)."""
+        return _disc_image(self)
+
+
+def _polymul(a, b) -> list[float]:
+    """Coefficients (ascending powers) of the product of two polynomials."""
+    out = [0.0] * (len(a) + len(b) - 1)
+    for i, u in enumerate(a):
+        for j, v in enumerate(b):
+            out[i + j] += u * v
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _rational_fold(k: tuple[float, ...]) -> float:
+    """Smallest s = r² > 0 where the rational radial map r·N(s)/D(s) stops rising, or its denominator
+    D(s) reaches 0; ``inf`` when neither happens. ``k`` = (k1, k2, k3, k4, k5, k6).
+
+    d/dr [r N/D] = [N D + 2 s (N' D − N D')] / D² (primes: d/ds), so the map turns where the
+    polynomial N D + 2 s (N' D − N D') has its first positive root, and has a pole where D has.
+    """
+    k1, k2, k3, k4, k5, k6 = k
+    num, den = [1.0, k1, k2, k3], [1.0, k4, k5, k6]
+    dnum, dden = [k1, 2.0 * k2, 3.0 * k3], [k4, 2.0 * k5, 3.0 * k6]
+    turn = _polymul(num, den)
+    for i, (a, b) in enumerate(zip(_polymul(dnum, den), _polymul(num, dden))):
+        turn[i + 1] += 2.0 * (a - b)
+    if not all(math.isfinite(c) for c in turn):
+        names = ("k1", "k2", "k3", "k4", "k5", "k6")
+        largest = max(range(6), key=lambda i: abs(k[i]))
+        raise ValueError(f"lens coefficient {names[largest]} = {k[largest]!r} is too large: the rational map's "
+                         "slope polynomial overflows a double")
+    roots = _positive_roots(tuple(turn)) + _positive_roots(tuple(den))
+    return min(roots) if roots else math.inf
+
+
+@dataclass(frozen=True)
+class Rational:
+    """OpenCV's rational lens (``CALIB_RATIONAL_MODEL``; ROS ``rational_polynomial``), in its order.
+
+    The radial factor is a ratio of two polynomials in r², which follows the strong distortion of
+    wide phone and action-camera lenses better than Brown–Conrady's single polynomial; the
+    tangential terms are Brown–Conrady's (module docstring).
+
+    Parameters
+    ----------
+    k1, k2, k3 : float
+        Numerator coefficients of the radial factor (as Brown–Conrady's k1, k2, k3).
+    p1, p2 : float
+        Tangential (decentring) coefficients.
+    k4, k5, k6 : float
+        Denominator coefficients: L(r) = (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶).
+
+    Notes
+    -----
+    With k4 = k5 = k6 = 0 the lens is the Brown–Conrady lens of the same k1, k2, p1, p2, k3.
+    Paper §4.1.3 (real cameras): calibrations of wide phone lenses often use this model.
+
+    Examples
+    --------
+    >>> lens = Rational(k1=0.5, k4=0.6)
+    >>> lens.coefficients.tolist()
+    [0.5, 0.0, 0.0, 0.0, 0.0, 0.6, 0.0, 0.0]
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    k4: float = 0.0
+    k5: float = 0.0
+    k6: float = 0.0
+
+    def __post_init__(self):
+        for name in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"):
+            object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+        self.radial_limit()  # refuses coefficients whose fold radius cannot be computed, naming them
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """(k1, k2, p1, p2, k3, k4, k5, k6), shape (8,), as ``cv2.projectPoints`` takes them."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3, self.k4, self.k5, self.k6])
+
+    @property
+    def is_identity(self) -> bool:
+        """True when every coefficient is zero."""
+        return not np.any(self.coefficients)
+
+    def radial_limit(self) -> float:
+        """Largest undistorted radius r (normalised) up to which the radial map r ↦ r·L(r) rises
+        (and its denominator stays positive); ``inf`` when it rises everywhere."""
+        return math.sqrt(_rational_fold((self.k1, self.k2, self.k3, self.k4, self.k5, self.k6)))
+
+    def radial_image(self, r: float) -> float:
+        """Distorted radius r·L(r) of undistorted radius ``r`` (normalised; the radial part alone);
+        ``inf`` at a pole of L."""
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return float(_radial_map(np.asarray(float(r)), self)[0])
+
+    def disc_image(self) -> float:
+        """The largest distorted radius with a preimage in the monotonic disc: r·L(r) at
+        :meth:`radial_limit`; ``inf`` when the map rises everywhere or up to a pole of L."""
+        return _disc_image(self)
+
 
 @dataclass(frozen=True)
 class KannalaBrandt:
@@ -465,7 +580,7 @@ class KannalaBrandt:
 
 
 #: The lens models every function of this module accepts (besides None, the ideal pinhole).
-LENS_TYPES = (BrownConrady, KannalaBrandt)
+LENS_TYPES = (BrownConrady, Rational, KannalaBrandt)
 
 
 def _check_distortion(distortion):
@@ -473,7 +588,7 @@ def _check_distortion(distortion):
         return None
     if not isinstance(distortion, LENS_TYPES):
         raise TypeError(
-            f"distortion must be a BrownConrady, a KannalaBrandt or None, got {type(distortion).__name__}")
+            f"distortion must be a BrownConrady, a Rational, a KannalaBrandt or None, got {type(distortion).__name__}")
     return None if distortion.is_identity else distortion
 
 
@@ -502,14 +617,14 @@ def _fisheye_undistort(xy_d: np.ndarray, d: KannalaBrandt) -> np.ndarray:
     return np.column_stack((xy_d[:, 0] * s, xy_d[:, 1] * s, np.cos(theta)))
 
 
-def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
-    """Apply the Brown–Conrady model to normalised coordinates.
+def distort(xy_norm, distortion) -> np.ndarray:
+    """Apply a lens model to normalised coordinates.
 
     Parameters
     ----------
     xy_norm : array_like, shape (N, 2) or (2,)
         Undistorted normalised coordinates (x/z, y/z).
-    distortion : BrownConrady, KannalaBrandt or None
+    distortion : BrownConrady, Rational, KannalaBrandt or None
         None (or all zeros) returns the input unchanged. A fisheye accepts normalised points
         in front of the camera only (field angle < 90°); use :func:`project` beyond.
 
@@ -527,54 +642,105 @@ def distort(xy_norm, distortion: BrownConrady | None) -> np.ndarray:
     return np.column_stack(_brown_conrady(xy[:, 0], xy[:, 1], d))
 
 
-def _brown_conrady(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> tuple[np.ndarray, np.ndarray]:
-    """The Brown–Conrady map (module docstring) on coordinate arrays: (x_d, y_d)."""
+def _radial(r2, d: BrownConrady | Rational):
+    """The radial factor L and its derivative dL/ds at s = r² (arrays), for a pinhole lens."""
+    num = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+    dnum = d.k1 + r2 * (2.0 * d.k2 + 3.0 * d.k3 * r2)
+    if isinstance(d, BrownConrady):
+        return num, dnum
+    den = 1.0 + r2 * (d.k4 + r2 * (d.k5 + r2 * d.k6))
+    dden = d.k4 + r2 * (2.0 * d.k5 + 3.0 * d.k6 * r2)
+    return num / den, (dnum * den - num * dden) / (den * den)
+
+
+def _brown_conrady(x: np.ndarray, y: np.ndarray, d: BrownConrady | Rational) -> tuple[np.ndarray, np.ndarray]:
+    """The map of a pinhole lens (Brown–Conrady or rational, module docstring) on coordinate arrays:
+    (x_d, y_d)."""
     r2 = x * x + y * y
-    radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+    radial = _radial(r2, d)[0]
     xd = x * radial + 2.0 * d.p1 * x * y + d.p2 * (r2 + 2.0 * x * x)
     yd = y * radial + d.p1 * (r2 + 2.0 * y * y) + 2.0 * d.p2 * x * y
     return xd, yd
 
 
-def _distort_jacobian(x, y, d: BrownConrady):
+def _distort_jacobian(x, y, d: BrownConrady | Rational):
     """Partial derivatives of (x_d, y_d) with respect to (x, y), each of shape (N,).
 
     Returns (∂x_d/∂x, ∂x_d/∂y, ∂y_d/∂x, ∂y_d/∂y); the two mixed ones are equal.
     """
     r2 = x * x + y * y
-    radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
-    two_dradial = 2.0 * (d.k1 + r2 * (2.0 * d.k2 + 3.0 * d.k3 * r2))
+    radial, dradial = _radial(r2, d)
+    two_dradial = 2.0 * dradial
     dxx = radial + x * (x * two_dradial + 6.0 * d.p2) + 2.0 * d.p1 * y
     dyy = radial + y * (y * two_dradial + 6.0 * d.p1) + 2.0 * d.p2 * x
     dxy = x * (y * two_dradial + 2.0 * d.p1) + 2.0 * d.p2 * y
     return dxx, dxy, dxy, dyy
 
 
-def _radial_map(r, d: BrownConrady):
+def _radial_map(r, d: BrownConrady | Rational):
     """r·L(r) and its derivative d/dr, for the radial part of ``d`` (arrays of radii)."""
     r2 = r * r
-    value = r * (1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3)))
-    slope = 1.0 + r2 * (3.0 * d.k1 + r2 * (5.0 * d.k2 + r2 * 7.0 * d.k3))
-    return value, slope
+    if isinstance(d, BrownConrady):
+        value = r * (1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3)))
+        slope = 1.0 + r2 * (3.0 * d.k1 + r2 * (5.0 * d.k2 + r2 * 7.0 * d.k3))
+        return value, slope
+    radial, dradial = _radial(r2, d)
+    return r * radial, radial + 2.0 * r2 * dradial
 
 
-def _radial_preimage(rd: np.ndarray, d: BrownConrady, r_limit: float, max_iter: int = 200) -> np.ndarray:
+def _disc_edge(d: BrownConrady | Rational, r_limit: float) -> float:
+    """The largest radius ≤ ``r_limit`` (finite) where the radial map evaluates to a finite value > 0.
+
+    At a fold that is ``r_limit`` itself; at a rational lens's pole, where the denominator's
+    rounding can make r·L(r) ±inf or negative, it is the first radius below it (stepping down by
+    doubling multiples of ε) where the map is still finite and positive.
+    """
+    r = r_limit
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for k in range(52):  # down to r_limit / 2 at most
+            value = float(_radial_map(np.asarray(r), d)[0])
+            if math.isfinite(value) and value > 0:
+                break
+            r = r_limit * (1.0 - 2.0**k * _EPS)
+    return r
+
+
+def _disc_image(d: BrownConrady | Rational) -> float:
+    """Distorted radius the monotonic disc reaches: r·L(r) at its edge; ``inf`` when the map rises
+    everywhere, or up to a pole."""
+    r_limit = d.radial_limit()
+    if not math.isfinite(r_limit):
+        return math.inf
+    if isinstance(d, Rational):
+        den = 1.0 + r_limit**2 * (d.k4 + r_limit**2 * (d.k5 + r_limit**2 * d.k6))
+        if abs(den) <= 1e-8:  # the edge is a pole: the map rises without bound towards it
+            return math.inf
+    image = d.radial_image(_disc_edge(d, r_limit))
+    return image if math.isfinite(image) else math.inf  # overflowed: beyond every double
+
+
+def _radial_preimage(rd: np.ndarray, d: BrownConrady | Rational, r_limit: float, max_iter: int = 200) -> np.ndarray:
     """Radius r in [0, r_limit] with r·L(r) = rd for the radial part alone (safeguarded Newton).
 
     r·L(r) rises on [0, r_limit], so the root is unique there; a radius beyond the image of the
     disc, r_limit·L(r_limit), comes back as r_limit. The iteration keeps a bracket [lo, hi] and
     bisects whenever a Newton step leaves it (or is not finite), so it cannot leave the disc;
-    it stops when a step moves r by at most 2 ε r.
+    it stops when a step moves r by at most 2 ε r. A rational lens's bracket is found by doubling
+    up to the disc's edge (which may be a pole), and a tiny step counts only once
+    |r·L(r) − rd| ≤ 1e-6 rd: beside a pole Newton's steps are tiny long before the root.
     """
-    if math.isfinite(r_limit):
+    rational = isinstance(d, Rational)
+    if math.isfinite(r_limit) and not rational:
         hi = np.full_like(rd, r_limit)
-    else:  # the map rises without bound: double until it passes rd
-        hi = np.maximum(rd, 1.0)
-        for _ in range(2100):
-            below = _radial_map(hi, d)[0] < rd
-            if not below.any():
-                break
-            hi = np.where(below, 2.0 * hi, hi)
+    else:  # the map rises without bound (or, rational, towards a pole or past overflow): double until it passes rd
+        edge = _disc_edge(d, r_limit) if math.isfinite(r_limit) else math.inf
+        hi = np.minimum(np.maximum(rd, 1.0), edge)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            for _ in range(2100):
+                below = (_radial_map(hi, d)[0] < rd) & (hi < edge)
+                if not below.any():
+                    break
+                hi = np.where(below, np.minimum(2.0 * hi, edge), hi)
     out = np.empty_like(rd)
     active = np.arange(len(rd))
     lo, r, target = np.zeros_like(rd), np.minimum(rd, hi), rd
@@ -588,6 +754,8 @@ def _radial_preimage(rd: np.ndarray, d: BrownConrady, r_limit: float, max_iter: 
         out_of_bracket = ~np.isfinite(r_new) | (r_new <= lo) | (r_new >= hi)
         r_new = np.where(out_of_bracket, 0.5 * (lo + hi), r_new)
         converged = (np.abs(r_new - r) <= 2.0 * _EPS * r_new) | (f == 0)
+        if rational:  # beside a pole a Newton step is tiny though far from the root: trust it once f is small
+            converged &= (f == 0) | (np.abs(f) <= 1e-6 * target)
         out[active[converged]] = r_new[converged]
         keep = ~converged
         active, r, lo, hi, target = active[keep], r_new[keep], lo[keep], hi[keep], target[keep]
@@ -597,19 +765,27 @@ def _radial_preimage(rd: np.ndarray, d: BrownConrady, r_limit: float, max_iter: 
     return out
 
 
-def _residual_floor(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> np.ndarray:
+def _residual_floor(x: np.ndarray, y: np.ndarray, d: BrownConrady | Rational) -> np.ndarray:
     """Rounding bound of |distort(x) − x_d| in double precision, per point (N,).
 
     Horner's rule and the tangential sums take about a dozen roundings, each at most ε times
     the sum of the terms' magnitudes r (1 + |k1| r² + |k2| r⁴ + |k3| r⁶) + 4 (|p1| + |p2|) r²;
-    16 ε times that sum bounds the residual's own error, below which no iteration can go.
+    16 ε times that sum bounds the residual's own error, below which no iteration can go. A
+    rational lens's quotient N/D carries ε (N̄ + |L| D̄)/|D| (bars: sums of the terms' magnitudes),
+    which takes the place of N̄.
     """
     r2 = x * x + y * y
     radial = abs(d.k1) + r2 * (abs(d.k2) + r2 * abs(d.k3))
-    return 16.0 * _EPS * (np.sqrt(r2) * (1.0 + r2 * radial) + 4.0 * (abs(d.p1) + abs(d.p2)) * r2)
+    magnitude = 1.0 + r2 * radial
+    if isinstance(d, Rational):
+        den_terms = 1.0 + r2 * (abs(d.k4) + r2 * (abs(d.k5) + r2 * abs(d.k6)))
+        den = np.abs(1.0 + r2 * (d.k4 + r2 * (d.k5 + r2 * d.k6)))
+        num = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+        magnitude = (magnitude + np.abs(num / den) * den_terms) / den
+    return 16.0 * _EPS * (np.sqrt(r2) * magnitude + 4.0 * (abs(d.p1) + abs(d.p2)) * r2)
 
 
-def _newton_in_disc(x, y, xd, yd, d: BrownConrady, r_limit: float, tol: float, max_iter: int):
+def _newton_in_disc(x, y, xd, yd, d: BrownConrady | Rational, r_limit: float, tol: float, max_iter: int):
     """Damped Newton iteration for distort(x, y) = (xd, yd) from starts inside the disc |x| < r_limit.
 
     A step is halved until it stays inside the disc and lowers the residual; a point whose step
@@ -626,7 +802,7 @@ def _newton_in_disc(x, y, xd, yd, d: BrownConrady, r_limit: float, tol: float, m
         ok = e <= tol
         rest = np.flatnonzero(~ok)
         if rest.size:
-            ok[rest] = e[rest] <= _residual_floor(u[rest], v[rest], d)
+            ok[rest] = np.isfinite(e[rest]) & (e[rest] <= _residual_floor(u[rest], v[rest], d))
         return ok
 
     done = converged(err, x, y)
@@ -668,17 +844,17 @@ def _newton_in_disc(x, y, xd, yd, d: BrownConrady, r_limit: float, tol: float, m
     return x, y, done
 
 
-def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+def undistort(xy_norm, distortion, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
     """Invert the lens model on normalised coordinates.
 
     Parameters
     ----------
     xy_norm : array_like, shape (N, 2) or (2,)
         Distorted normalised coordinates.
-    distortion : BrownConrady, KannalaBrandt or None
+    distortion : BrownConrady, Rational, KannalaBrandt or None
         None (or all zeros) returns the input unchanged.
     tol : float
-        Brown–Conrady: the iteration stops when |distort(x) − x_d| ≤ max(tol, the residual's
+        Brown–Conrady and rational: the iteration stops when |distort(x) − x_d| ≤ max(tol, the residual's
         own rounding bound 16 ε Σ|terms|) (normalised units). An answer is then within about
         that residual times ‖J⁻¹‖ of the exact preimage (J: the model's Jacobian there).
     max_iter : int
@@ -693,13 +869,13 @@ def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_
     Raises
     ------
     UndistortionError
-        When a point has no preimage inside the monotonic disc |x| < :meth:`BrownConrady.radial_limit`
+        When a point has no preimage inside the monotonic disc |x| < the lens's ``radial_limit()``
         (the model folds over there), or the iteration does not converge. The message counts the
         failing points.
 
     Notes
     -----
-    Brown–Conrady: the radial part alone is inverted first, per point, by a bracketed Newton
+    Brown–Conrady and rational: the radial part alone is inverted first, per point, by a bracketed Newton
     iteration on [0, radial_limit] (the map r ↦ r·L(r) rises there, so the root is unique and
     exists exactly when the distorted radius is below the image of the disc,
     radial_limit·L(radial_limit)). That start lies inside the disc, where the full model
@@ -730,7 +906,7 @@ def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_
     bad = ~(done & (x * x + y * y < r_limit * r_limit) & (dxx * dyy - dxy * dyx > 0))
     if bad.any():
         worst = float(rd[bad].max())
-        image = float(_radial_map(np.array(r_limit), d)[0]) if math.isfinite(r_limit) else math.inf
+        image = d.disc_image()
         raise UndistortionError(
             f"{int(bad.sum())} of {len(xd)} points have no preimage in the distortion model's "
             f"monotonic disc (undistorted radius < {r_limit:.6g}, whose radial image reaches distorted "
@@ -740,7 +916,7 @@ def undistort(xy_norm, distortion: BrownConrady | None, tol: float = 1e-12, max_
     return np.column_stack((x, y))
 
 
-def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None = None) -> np.ndarray:
+def project(points_cam, intrinsics: Intrinsics, distortion=None) -> np.ndarray:
     """Project 3-D points in the camera optical frame to pixels.
 
     Parameters
@@ -748,7 +924,7 @@ def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None 
     points_cam : array_like, shape (N, 3) or (3,)
         Points in the OpenCV camera frame (x right, y down, z forward), metres.
     intrinsics : Intrinsics
-    distortion : BrownConrady, optional
+    distortion : BrownConrady, Rational or KannalaBrandt, optional
 
     Returns
     -------
@@ -783,7 +959,7 @@ def project(points_cam, intrinsics: Intrinsics, distortion: BrownConrady | None 
     return out
 
 
-def backproject(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None = None) -> np.ndarray:
+def backproject(uv_px, intrinsics: Intrinsics, distortion=None) -> np.ndarray:
     """Rays through pixels, as (û, v̂, 1): K⁻¹(u, v, 1)ᵀ after undistortion when a model is given.
 
     Parameters
@@ -791,7 +967,7 @@ def backproject(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None =
     uv_px : array_like, shape (N, 2) or (2,)
         Pixel coordinates.
     intrinsics : Intrinsics
-    distortion : BrownConrady, optional
+    distortion : BrownConrady, Rational or KannalaBrandt, optional
 
     Returns
     -------
@@ -808,7 +984,7 @@ def backproject(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None =
     return np.column_stack((xy, np.ones(len(xy))))
 
 
-def undistort_pixels(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None) -> np.ndarray:
+def undistort_pixels(uv_px, intrinsics: Intrinsics, distortion) -> np.ndarray:
     """Pixels of the distorted camera → pixels of the ideal pinhole camera with the same K.
 
     Returns an array of shape (N, 2).
@@ -816,7 +992,7 @@ def undistort_pixels(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | N
     return intrinsics.to_pixels(undistort(intrinsics.to_normalised(uv_px), distortion))
 
 
-def distort_pixels(uv_px, intrinsics: Intrinsics, distortion: BrownConrady | None) -> np.ndarray:
+def distort_pixels(uv_px, intrinsics: Intrinsics, distortion) -> np.ndarray:
     """Pixels of the ideal pinhole camera → pixels of the distorted camera with the same K.
 
     Returns an array of shape (N, 2).

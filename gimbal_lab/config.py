@@ -45,7 +45,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from .camera import BrownConrady, Intrinsics, KannalaBrandt, project
+from .camera import BrownConrady, Intrinsics, KannalaBrandt, Rational, project
 from .kinematics import GimbalKinematics
 from .platform import BodyMotion, HoverSway, Vibration, WaypointFlight
 from .trajectories import Trajectory
@@ -288,7 +288,7 @@ _DEFAULT_F_NUMBER = 2.8
 #: Largest image motion, px, between two sub-frames of an exposure whose count is derived from its
 #: streak (:meth:`Camera.subframe_count`): consecutive copies of the target overlap to a pixel.
 SUBFRAME_STEP_PX = 1.0
-_LENS_MODELS = {"brown_conrady": BrownConrady, "kannala_brandt": KannalaBrandt}
+_LENS_MODELS = {"brown_conrady": BrownConrady, "rational": Rational, "kannala_brandt": KannalaBrandt}
 
 
 def _lens_from_table(value, where: str):
@@ -297,7 +297,7 @@ def _lens_from_table(value, where: str):
     table = dict(value)
     model = table.pop("model", "brown_conrady")
     if model not in _LENS_MODELS:
-        raise ValueError(f"{where}: unknown lens model {model!r} (brown_conrady or kannala_brandt)")
+        raise ValueError(f"{where}: unknown lens model {model!r} (brown_conrady, rational or kannala_brandt)")
     return _from_table(_LENS_MODELS[model], table, f"{where} ({model})")
 
 
@@ -321,9 +321,10 @@ class Camera(_Part):
         (:meth:`gimbal_lab.camera.KannalaBrandt.equidistant_for_fov`).
     calibration : Intrinsics or None
         A calibrated camera's intrinsics (its width and height are the image's).
-    lens : {"none", "default"}, BrownConrady or KannalaBrandt
+    lens : {"none", "default"}, BrownConrady, Rational or KannalaBrandt
         "default" is :meth:`BrownConrady.default`; a :class:`KannalaBrandt` fisheye is rendered
-        through :class:`gimbal_lab.widefield.WideFieldRenderer`.
+        through :class:`gimbal_lab.widefield.WideFieldRenderer`. As a table: ``model``
+        ("brown_conrady", the default, "rational" or "kannala_brandt") and the lens's coefficients.
     fps : float
         Frame rate, 1/s (30).
     latency_frames : int
@@ -430,9 +431,10 @@ class Camera(_Part):
 
     def __post_init__(self):
         self._set("lens", _lens_from_table(self.lens, "camera.lens"))
-        if not isinstance(self.lens, (BrownConrady, KannalaBrandt)):
+        if not isinstance(self.lens, (BrownConrady, Rational, KannalaBrandt)):
             if not isinstance(self.lens, str):
-                raise TypeError(f"camera.lens must be one of {_LENS_NAMES}, a BrownConrady or a KannalaBrandt, "
+                raise TypeError(f"camera.lens must be one of {_LENS_NAMES}, a BrownConrady, a Rational or a "
+                                "KannalaBrandt, "
                                 f"got {type(self.lens).__name__}")
             self._choice("lens", _LENS_NAMES)
         self._number("fps", low=0.0, low_open=True)
@@ -514,8 +516,8 @@ class Camera(_Part):
     def _encode(self, name, value):
         if name == "noise" and value == "fixed":
             return None  # the default, left out so that the configs of before the field keep their keys
-        if name == "lens" and isinstance(value, (BrownConrady, KannalaBrandt)):
-            model = "kannala_brandt" if isinstance(value, KannalaBrandt) else "brown_conrady"
+        if name == "lens" and isinstance(value, (BrownConrady, Rational, KannalaBrandt)):
+            model = next(key for key, kind in _LENS_MODELS.items() if isinstance(value, kind))
             return {"model": model, **{k: float(v) for k, v in dataclasses.asdict(value).items()}}
         return _plain(value)
 
@@ -532,20 +534,21 @@ class Camera(_Part):
         return Intrinsics.from_fov(self.width, self.height, self.hfov_rad)
 
     @property
-    def lens_model(self) -> BrownConrady | KannalaBrandt | None:
+    def lens_model(self) -> BrownConrady | Rational | KannalaBrandt | None:
         """The lens model, or None for an ideal pinhole lens."""
         if isinstance(self.lens, KannalaBrandt):
             return self.lens
-        if isinstance(self.lens, BrownConrady):
+        if isinstance(self.lens, (BrownConrady, Rational)):
             return None if self.lens.is_identity else self.lens
         return BrownConrady.default() if self.lens == "default" else None
 
     @property
     def lens_label(self) -> str:
-        """"undistorted", "distorted" (the default lens), "custom" (another Brown–Conrady) or "fisheye"."""
+        """"undistorted", "distorted" (the default lens), "custom" (another Brown–Conrady, or a rational
+        lens) or "fisheye"."""
         if isinstance(self.lens, KannalaBrandt):
             return "fisheye"
-        if isinstance(self.lens, BrownConrady):
+        if isinstance(self.lens, (BrownConrady, Rational)):
             return "custom"
         return "distorted" if self.lens == "default" else "undistorted"
 

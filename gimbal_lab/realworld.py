@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration, load_calibration, save_calibration
-from .camera import BrownConrady, Intrinsics, KannalaBrandt, project, undistort
+from .camera import BrownConrady, Intrinsics, KannalaBrandt, Rational, project, undistort
 from .scene import linear_to_srgb
 
 __all__ = [
@@ -236,7 +236,7 @@ class PhotoEffects:
 
 
 class PlanarTargetCamera:
-    """Image a flat textured target through a pinhole or Brown–Conrady camera, exactly.
+    """Image a flat textured target through a pinhole, Brown–Conrady or rational camera, exactly.
 
     Every output pixel is split into ``supersample``² sub-pixels; each sub-pixel centre is
     undistorted once (the rays are fixed by the camera, computed at construction) and, per frame,
@@ -247,7 +247,7 @@ class PlanarTargetCamera:
     Parameters
     ----------
     intrinsics : Intrinsics
-    distortion : BrownConrady, optional
+    distortion : BrownConrady or Rational, optional
     supersample : int
         Sub-pixels per pixel side (1–8).
 
@@ -257,11 +257,12 @@ class PlanarTargetCamera:
     sits at ((j + 0.5)/s − 0.5, (i + 0.5)/s − 0.5) in output pixels.
     """
 
-    def __init__(self, intrinsics: Intrinsics, distortion: BrownConrady | None = None, supersample: int = 3):
+    def __init__(self, intrinsics: Intrinsics, distortion: BrownConrady | Rational | None = None,
+                 supersample: int = 3):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
-        if distortion is not None and not isinstance(distortion, BrownConrady):
-            raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+        if distortion is not None and not isinstance(distortion, (BrownConrady, Rational)):
+            raise TypeError(f"distortion must be a BrownConrady, a Rational or None, got {type(distortion).__name__}")
         if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 8:
             raise ValueError(f"supersample must be an integer in 1..8, got {supersample!r}")
         self.intrinsics, self.distortion, self.supersample = intrinsics, distortion, int(supersample)
@@ -620,9 +621,13 @@ def find_board(gray: np.ndarray, board: str, pattern, square_m: float, marker_m:
     raise ValueError(f"board must be 'chessboard' or 'charuco', got {board!r}")
 
 
+#: Lens models :func:`calibrate` fits.
+CALIBRATION_MODELS = ("brown_conrady", "rational")
+
+
 def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float = 0.025,
               marker_m: float | None = None, dictionary: str = "DICT_5X5_100", step: int = 1,
-              fix_k3: bool = True, progress: bool = False) -> Calibration:
+              fix_k3: bool = True, progress: bool = False, model: str = "brown_conrady") -> Calibration:
     """Calibrate a camera from views of a chessboard or ChArUco board (``cv2.calibrateCamera``).
 
     Parameters
@@ -639,10 +644,15 @@ def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float
     step : int
         Use every ``step``-th frame (consecutive video frames repeat a view).
     fix_k3 : bool
-        Hold k3 at 0 (a usual choice for ordinary lenses: with few views k3 trades off against
-        k1 and k2 and extrapolates badly into the corners).
+        Brown–Conrady: hold k3 at 0 (a usual choice for ordinary lenses: with few views k3 trades
+        off against k1 and k2 and extrapolates badly into the corners).
     progress : bool
         Show a progress bar.
+    model : {"brown_conrady", "rational"}
+        The lens model fitted: Brown–Conrady (k1, k2, p1, p2, k3), or OpenCV's rational model
+        (``CALIB_RATIONAL_MODEL``: k1..k6 with p1, p2; :class:`gimbal_lab.camera.Rational`) for
+        wide phone and action-camera lenses. It has three more coefficients to fit: give it many
+        varied views reaching into the image's corners.
 
     Returns
     -------
@@ -656,6 +666,8 @@ def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float
     """
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step must be an integer >= 1, got {step!r}")
+    if model not in CALIBRATION_MODELS:
+        raise ValueError(f"model must be one of {CALIBRATION_MODELS}, got {model!r}")
     for name, value in (("square_m", square_m), ("marker_m", marker_m)):
         if value is not None and not (isinstance(value, (int, float, np.number)) and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a length > 0 m, got {value!r}")
@@ -683,12 +695,16 @@ def calibrate(frames, board: str = "chessboard", pattern=(9, 6), square_m: float
             images.append(found[1].astype(np.float32).reshape(-1, 1, 2))
     if len(objects) < 3:
         raise ValueError(f"the board was found in {len(objects)} frame(s); calibration needs at least 3 varied views")
-    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    if model == "rational":
+        flags = cv2.CALIB_RATIONAL_MODEL
+    else:
+        flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     rms, K, dist, _, _ = cv2.calibrateCamera(objects, images, size, None, None, flags=flags)
     d = np.asarray(dist, float).reshape(-1)
     intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], size[0], size[1])
-    return Calibration(intrinsics, BrownConrady(k1=d[0], k2=d[1], p1=d[2], p2=d[3], k3=d[4] if len(d) > 4 else 0.0),
-                       float(rms), len(objects))
+    lens = Rational(*d[:8]) if model == "rational" else BrownConrady(k1=d[0], k2=d[1], p1=d[2], p2=d[3],
+                                                                      k3=d[4] if len(d) > 4 else 0.0)
+    return Calibration(intrinsics, lens, float(rms), len(objects))
 
 
 # --------------------------------------------------------------------------------------------

@@ -32,6 +32,10 @@ def add_parsers(subparsers) -> None:
     cal.add_argument("--square", type=length_m, default=0.025, metavar="METRES", help="side of a square (default 0.025)")
     cal.add_argument("--marker", type=length_m, default=None, metavar="METRES", help="ChArUco: side of a marker")
     cal.add_argument("--dictionary", default="DICT_5X5_100", help="ChArUco marker dictionary (default DICT_5X5_100)")
+    cal.add_argument("--model", choices=("brown_conrady", "rational"), default="brown_conrady",
+                     help="lens model: brown_conrady (k1, k2, p1, p2; k3 held at 0) or rational (OpenCV's "
+                          "CALIB_RATIONAL_MODEL, k1..k6 with p1, p2: wide phone and action-camera lenses; needs "
+                          "many views reaching the corners) (default brown_conrady)")
     cal.add_argument("--step", type=positive_int, default=1, help="use every STEP-th frame (default 1)")
     cal.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="read at most N frames")
     cal.add_argument("--out", default="calibration.yaml", metavar="FILE",
@@ -100,7 +104,7 @@ def _calibrate_command(args, parser) -> int:
             rw._dictionary_id(args.dictionary)
         frames = rw.open_frames(args.source)
         result = rw.calibrate(_limited(frames, args.max_frames), args.board, args.pattern, args.square, args.marker,
-                              args.dictionary, args.step, progress=not args.no_progress)
+                              args.dictionary, args.step, progress=not args.no_progress, model=args.model)
     except (FileNotFoundError, ValueError) as exc:
         parser.error(str(exc))
     except KeyboardInterrupt:
@@ -109,7 +113,7 @@ def _calibrate_command(args, parser) -> int:
         rw.save_calibration(tmp, result)
     cam = result.intrinsics
     print(f"{args.out}: {cam.width}x{cam.height} px, fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f}, "
-          f"k1={result.distortion.k1:.4f} k2={result.distortion.k2:.4f}; RMS reprojection error "
+          f"{args.model} lens k1={result.distortion.k1:.4f} k2={result.distortion.k2:.4f}; RMS reprojection error "
           f"{result.rms_px:.3f} px over {result.views} views")
     return 0
 

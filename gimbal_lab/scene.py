@@ -83,7 +83,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera import BrownConrady, Intrinsics, distort_pixels, undistort_pixels
+from .camera import BrownConrady, Intrinsics, Rational, distort_pixels, undistort_pixels
 
 
 def _choose_opengl_platform() -> str:
@@ -1198,7 +1198,7 @@ class SceneRenderer:
     ----------
     intrinsics : Intrinsics
         The output camera (image size, K).
-    distortion : BrownConrady, optional
+    distortion : BrownConrady or Rational, optional
         Lens distortion of the output camera; None or all-zero renders the pinhole image.
     target : {"sphere", "aruco"}
         The one target placed in the scene.
@@ -1245,7 +1245,7 @@ class SceneRenderer:
     def __init__(
         self,
         intrinsics: Intrinsics,
-        distortion: BrownConrady | None = None,
+        distortion: BrownConrady | Rational | None = None,
         target: str = "sphere",
         sphere_radius_m: float = 0.10,
         sphere_rgb: tuple[float, float, float] = (1.0, 0.0, 0.0),
@@ -1259,8 +1259,8 @@ class SceneRenderer:
     ):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
-        if distortion is not None and not isinstance(distortion, BrownConrady):
-            raise TypeError(f"distortion must be a BrownConrady or None, got {type(distortion).__name__}")
+        if distortion is not None and not isinstance(distortion, (BrownConrady, Rational)):
+            raise TypeError(f"distortion must be a BrownConrady, a Rational or None, got {type(distortion).__name__}")
         if target not in ("sphere", "aruco"):
             raise ValueError(f"target must be 'sphere' or 'aruco', got {target!r}")
         self.intrinsics = intrinsics

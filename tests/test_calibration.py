@@ -17,7 +17,7 @@ import pytest
 
 from gimbal_lab import realworld as rw
 from gimbal_lab.calibration import MAX_IMAGE_SIDE_PX, Calibration, load_calibration, save_calibration
-from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt, project
+from gimbal_lab.camera import BrownConrady, Intrinsics, KannalaBrandt, Rational, project
 
 REAL = Path("/work/shared/data/real-aruco")
 PX_TOL = 1e-9
@@ -165,6 +165,29 @@ def test_ros_pinhole_models_are_read_as_brown_conrady(tmp_path, model, D):
     assert_projects_like_opencv(calibration, K_RAW, D)
 
 
+#: A wide phone lens in OpenCV's rational model (k1, k2, p1, p2, k3, k4, k5, k6).
+RATIONAL_D = [2.2, 0.8, 0.0005, -0.0003, 0.02, 2.6, 1.5, 0.12]
+
+
+@pytest.mark.parametrize("suffix", [".yml", ".xml", ".json"])
+@pytest.mark.parametrize("D", [RATIONAL_D, RATIONAL_D + [0.0] * 4, RATIONAL_D + [0.0] * 6], ids=["8", "12", "14"])
+def test_an_opencv_rational_calibration_is_read_as_the_rational_lens(tmp_path, suffix, D):
+    """OpenCV's CALIB_RATIONAL_MODEL writes 8 numbers (12 or 14 with thin-prism and tilt terms at 0)."""
+    path = write_opencv(tmp_path / f"phone{suffix}", {
+        "image_width": 640, "image_height": 480, "camera_matrix": np.array(K_RAW),
+        "distortion_coefficients": np.array(D).reshape(-1, 1)})
+    calibration = load_calibration(path)
+    assert isinstance(calibration.distortion, Rational)
+    np.testing.assert_array_equal(calibration.distortion.coefficients, RATIONAL_D)
+    assert_projects_like_opencv(calibration, K_RAW, D)
+
+
+def test_ros_rational_polynomial_is_read_as_the_rational_lens(tmp_path):
+    calibration = load_calibration(ros_yaml(tmp_path / "phone.yaml", D=RATIONAL_D, model="rational_polynomial"))
+    assert isinstance(calibration.distortion, Rational)
+    assert_projects_like_opencv(calibration, K_RAW, RATIONAL_D)
+
+
 def test_ros_equidistant_is_read_as_kannala_brandt_not_brown_conrady(tmp_path):
     """The issue: k3, k4 of an equidistant lens landed in p1, p2 of a Brown–Conrady one."""
     D = [0.061, -0.017, 0.0029, -0.0004]
@@ -187,15 +210,21 @@ def test_a_principal_point_anywhere_is_accepted(tmp_path):
         BrownConrady(k1=-0.25, k2=0.12, p1=-0.00028, p2=-0.00005, k3=0.1 / 3),
         KannalaBrandt(k1=-0.013, k2=-0.0053, k3=0.0014, k4=-0.0002),
         KannalaBrandt(k1=-0.013, max_field_rad=1.2345678901234567),
+        Rational(k1=2.2, k2=0.8, p1=0.0005, p2=-0.0003, k3=0.02, k4=2.6, k5=1.5, k6=0.12 / 7),
         None,
     ],
-    ids=["brown-conrady", "kannala-brandt", "fisheye-field-limit", "ideal"],
+    ids=["brown-conrady", "kannala-brandt", "fisheye-field-limit", "rational", "ideal"],
 )
 def test_save_then_load_gives_back_the_same_doubles(tmp_path, suffix, lens):
     cam = Intrinsics(fx=554.2562584220408, fy=554.25625842204, cx=319.5 + 1 / 3, cy=239.5, width=640, height=480)
     original = Calibration(cam, lens, rms_px=0.1234567890123456789, views=17)
-    loaded = load_calibration(save_calibration(tmp_path / "sub" / f"cam{suffix}", original))
+    path = save_calibration(tmp_path / "sub" / f"cam{suffix}", original)
+    loaded = load_calibration(path)
     assert loaded == original  # dataclass equality: every double bit for bit
+    raw = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)  # the model's name, for ROS and OpenCV readers
+    named = raw.getNode("distortion_model").string()
+    raw.release()
+    assert named == {KannalaBrandt: "equidistant", Rational: "rational_polynomial"}.get(type(lens), "plumb_bob")
 
 
 def test_an_ideal_lens_must_be_said_and_is_read_as_none(tmp_path):
@@ -241,7 +270,7 @@ def test_fisheye_model_contradicting_distortion_model_is_refused(tmp_path):
 
 @pytest.mark.parametrize(
     "count, index, name",
-    [(8, 5, "k4"), (8, 7, "k6"), (12, 9, "s2"), (14, 13, "tau_y")],
+    [(12, 8, "s1"), (12, 9, "s2"), (14, 13, "tau_y")],
 )
 def test_coefficients_the_lab_cannot_model_must_be_exactly_zero(tmp_path, count, index, name):
     D = [-0.21, 0.043, 0.0012, -0.0007, 0.0051] + [0.0] * (count - 5)
@@ -296,6 +325,18 @@ def test_a_lens_that_folds_inside_the_image_is_refused_by_name(tmp_path):
     with pytest.raises(ValueError, match=r"absurd\.yaml.*distortion_coefficients: the lens cannot be inverted over "
                                          r"the image in double precision"):
         load_calibration(ros_yaml(tmp_path / "absurd.yaml", D=[1e300, 0.0, 0.0, 0.0, 0.0]))
+
+
+def test_a_rational_lens_that_folds_inside_the_image_is_refused_by_name(tmp_path):
+    """k4 = 1 alone: r/(1 + r²) peaks at r = 1 with distorted radius 1/2 (by hand); the corner of a
+    640 × 480 image lies at 400/f: inside for f = 810 px (0.4938), beyond for f = 790 px (0.5063)."""
+    D = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]
+    inside = load_calibration(ros_yaml(tmp_path / "inside.yaml", K=square_camera(810.0), D=D, model="rational_polynomial"))
+    assert isinstance(inside.distortion, Rational)
+    with pytest.raises(ValueError, match=r"distortion_coefficients: the lens folds inside the image: its radial map "
+                                         r"stops rising at undistorted radius 1, distorted radius 0\.5, but the image "
+                                         r"corner lies at distorted radius 0\.506329"):
+        load_calibration(ros_yaml(tmp_path / "beyond.yaml", K=square_camera(790.0), D=D, model="rational_polynomial"))
 
 
 def test_a_fisheye_that_folds_inside_the_image_is_refused_by_name(tmp_path):

@@ -415,3 +415,127 @@ def test_undistort_damps_newton_steps_that_would_overshoot(lens, x):
     assert len(_valid_points(lens, [np.hypot(*x[0]) / min(lens.radial_limit(), 2.0)], [np.arctan2(x[0, 1], x[0, 0])])) == 1
     back = undistort(distort(x, lens), lens, tol=TOL)
     assert np.hypot(*(back - x)[0]) <= 2.0 * _inverse_jacobian_norm(x, lens)[0] * 2.0 * TOL
+
+
+# --- the rational lens (OpenCV's CALIB_RATIONAL_MODEL) -------------------------------------------
+from gimbal_lab.camera import Rational  # noqa: E402
+
+#: A wide phone-style lens: strong barrel from a falling ratio, L(∞) = k3/k6 = 1/6, rising everywhere.
+PHONE = Rational(k1=2.2, k2=0.8, p1=0.0005, p2=-0.0003, k3=0.02, k4=2.6, k5=1.5, k6=0.12)
+
+
+@pytest.mark.parametrize("lens", [PHONE, Rational(k1=-0.2, k2=0.05, p1=0.001, k3=0.01, k4=0.3, k5=-0.1, k6=0.02)],
+                         ids=["phone", "mixed-signs"])
+def test_rational_project_matches_opencv(lens):
+    """cv2.projectPoints with the 8 coefficients is the oracle, at Brown–Conrady's tolerance
+    (test_project_matches_opencv: the same rational function in double precision, 1e-6 px)."""
+    points = random_points_in_view(2000)
+    ours = project(points, CAM, lens)
+    theirs, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), CAM.K, lens.coefficients)
+    assert np.abs(ours - theirs[:, 0, :]).max() < 1e-6
+
+
+@pytest.mark.parametrize("lens", [PHONE, Rational(k1=-0.2, k2=0.05, p1=0.001, k3=0.01, k4=0.3, k5=-0.1, k6=0.02)],
+                         ids=["phone", "mixed-signs"])
+def test_rational_undistort_matches_opencv_over_the_image(lens):
+    """cv2.undistortPoints with the 8 coefficients is the oracle, at Brown–Conrady's tolerance
+    (test_undistort_matches_opencv_over_the_image: 1e-6 px; re-distorted within 1e-8 px)."""
+    grid = np.stack(np.meshgrid(np.arange(0, 640, 8.0), np.arange(0, 480, 8.0)), -1).reshape(-1, 2)
+    ours = undistort_pixels(grid, CAM, lens)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    theirs = cv2.undistortPoints(grid[:, None, :], CAM.K, lens.coefficients, None, None, CAM.K, criteria)
+    assert np.abs(ours - theirs[:, 0, :]).max() < 1e-6
+    assert np.abs(distort_pixels(ours, CAM, lens) - grid).max() < 1e-8
+    rays = backproject(grid, CAM, lens)
+    assert np.abs(project(rays, CAM, lens) - grid).max() < 1e-8
+
+
+def test_a_rational_lens_without_a_denominator_is_the_brown_conrady_lens():
+    """k4 = k5 = k6 = 0: L = N/1, bit for bit the Brown–Conrady map."""
+    x = random_points_in_view(500)[:, :2] / 4.0
+    bc = BrownConrady(k1=-0.25, k2=0.12, p1=-0.00028, p2=-0.00005, k3=0.01)
+    rational = Rational(k1=-0.25, k2=0.12, p1=-0.00028, p2=-0.00005, k3=0.01)
+    np.testing.assert_array_equal(distort(x, rational), distort(x, bc))
+    assert rational.radial_limit() == bc.radial_limit()
+
+
+@pytest.mark.parametrize(
+    "lens, r_fold, rd_fold",
+    [
+        (Rational(k4=1.0), 1.0, 0.5),  # r/(1 + r²): slope (1 − r²)/(1 + r²)², peak 1/2 at r = 1
+        (Rational(k4=-1.0), 1.0, math.inf),  # r/(1 − r²) rises to its pole at r = 1
+        (Rational(k1=-0.5), math.sqrt(2 / 3), math.sqrt(2 / 3) * 2 / 3),  # Brown–Conrady's k1 = −0.5
+        (PHONE, math.inf, math.inf),
+    ],
+    ids=["peak", "pole", "numerator-only", "phone"],
+)
+def test_rational_fold_radius_is_where_the_map_turns_or_its_denominator_vanishes(lens, r_fold, rd_fold):
+    """Hand-derived: d/dr [r N/D] = [N D + 2 s (N' D − N D')]/D², s = r². Distorted radii just inside
+    the disc's image have a preimage in the disc; just beyond, none (a pole's image is unbounded:
+    a distorted radius of 1e3 still has one, to the rounding floor of N/D beside the pole)."""
+    assert lens.radial_limit() == pytest.approx(r_fold, rel=1e-14)
+    if not math.isfinite(r_fold):
+        return
+    assert lens.radial_image(r_fold) == pytest.approx(rd_fold, rel=1e-14)
+    inside = 0.999 * rd_fold if math.isfinite(rd_fold) else 1e3
+    back = undistort([[0.0, inside]], lens)
+    assert np.hypot(*back[0]) < r_fold
+    assert np.abs(distort(back, lens) - [[0.0, inside]]).max() <= max(TOL, _residual_floor(*back.T, lens)[0])
+    if math.isfinite(rd_fold):
+        with pytest.raises(UndistortionError, match="monotonic disc"):
+            undistort([[1.001 * rd_fold, 0.0]], lens)
+
+
+def test_rational_coefficients_are_checked_by_name():
+    with pytest.raises(ValueError, match="k5 must be finite"):
+        Rational(k5=math.nan)
+    with pytest.raises(ValueError, match=r"k6 = 1e\+308 is too large"):
+        Rational(k6=1e308)
+    with pytest.raises(TypeError, match="a BrownConrady, a Rational, a KannalaBrandt or None"):
+        distort([[0.1, 0.2]], (0.1, 0.0, 0.0, 0.0, 0.0))
+
+
+@settings(database=None, max_examples=300, derandomize=True, deadline=None)
+@given(
+    k1=coefficient, k2=coefficient, k3=coefficient, p1=tangential, p2=tangential,
+    k4=st.floats(0.0, 3.0, allow_subnormal=False), k5=coefficient, k6=coefficient,
+    polar=st.lists(st.tuples(st.floats(0.0, 0.999), st.floats(0.0, 2 * np.pi)), min_size=1, max_size=16),
+)
+def test_rational_undistort_inverts_distort_over_the_monotonic_disc(k1, k2, k3, p1, p2, k4, k5, k6, polar):
+    """The round trip distort → undistort for any rational lens, at any point inside the disc where
+    its radial map rises (before any pole) and det J > 0; the bound as for Brown–Conrady
+    (test_undistort_finds_every_point_of_the_monotonic_disc): 2‖J⁻¹‖ (tol + floor)."""
+    lens = Rational(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3, k4=k4, k5=k5, k6=k6)
+    fractions, angles = np.array(polar).T
+    x = _valid_points(lens, fractions, angles)
+    if len(x) == 0:
+        return
+    floors = _residual_floor(x[:, 0], x[:, 1], lens)
+    back = undistort(distort(x, lens), lens, tol=TOL)
+    bound = 2.0 * _inverse_jacobian_norm(x, lens) * 2.0 * np.maximum(TOL, floors)
+    assert np.all(np.hypot(*(back - x).T) <= bound)
+
+
+def test_the_rational_lens_is_a_rigs_lens_in_configs_and_scenario_files(tmp_path):
+    """[camera.lens] model = "rational" in a scenario file builds the Camera whose lens is that
+    Rational; its table (to_dict) gives it back, and an unknown model is named."""
+    from gimbal_lab.config import Camera, TrackingConfig
+    from gimbal_lab.studies.scenario import Scenario
+
+    camera = Camera(lens={"model": "rational", **{k: float(v) for k, v in zip(
+        ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), PHONE.coefficients)}})
+    assert camera.lens == PHONE and camera.lens_model == PHONE and camera.lens_label == "custom"
+    assert camera.to_dict()["lens"]["model"] == "rational"
+    assert Camera.from_dict(camera.to_dict()) == camera
+    with pytest.raises(ValueError, match=r"unknown lens model 'rationl' \(brown_conrady, rational or kannala_brandt\)"):
+        Camera(lens={"model": "rationl"})
+    scenario = tmp_path / "phone.toml"
+    scenario.write_text(
+        'description = "a wide phone lens"\n'
+        "[camera.lens]\n"
+        'model = "rational"\n'
+        "k1 = 2.2\nk2 = 0.8\np1 = 0.0005\np2 = -0.0003\nk3 = 0.02\nk4 = 2.6\nk5 = 1.5\nk6 = 0.12\n"
+        "[sweep]\n"
+        'pointing = ["fixed", "paper"]\n')
+    read = Scenario.from_toml(scenario)
+    assert TrackingConfig.from_dict(read.base).camera.lens_model == PHONE
