@@ -28,6 +28,8 @@ from contextlib import contextmanager
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink  # the oracle's parser, fresh per use
 
 import gimbal_lab
@@ -849,3 +851,142 @@ def test_command_line_bounds_are_the_devices():
     done = subprocess.run(cli("--help"), capture_output=True, text=True, timeout=LIVENESS_S)
     text = " ".join(done.stdout.split())  # argparse wraps the help
     assert "status rate, Hz, in (0, 1000]" in text and "commands, s, in [0, 10]" in text
+
+
+# ---------------------------------------------------------------------------------- limits and the seam
+class _Recorder(Link):
+    """A link that keeps the device's statuses, parsed by a fresh pymavlink parser."""
+
+    def __init__(self):
+        self.parser, self.statuses = mavlink.MAVLink(None), []
+
+    def read(self, timeout_s):
+        return b""
+
+    def write(self, data):
+        self.statuses += [m for m in self.parser.parse_buffer(data) or ()
+                          if m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS"]
+
+
+def _in_process_device(duration_s, **kwargs):
+    """A lock-step device driven by direct calls (no thread): (device, its recording link)."""
+    link = _Recorder()
+    return SimulatedGimbalDevice(link, simulated_gimbal(duration_s=duration_s), LinkEffects(status_rate_hz=100.0),
+                                 lockstep=True, **kwargs), link
+
+
+def _command_attitude(device, yaw_deg, pitch_deg=0.0, roll_deg=0.0, frame="vehicle"):
+    """GIMBAL_DEVICE_SET_ATTITUDE of the Z-Y-X angles, as received off the wire."""
+    sender = mavlink.MAVLink(None, srcSystem=200, srcComponent=191)
+    flags = ROLL_LOCK | PITCH_LOCK | (YAW_IN_VEHICLE_FRAME if frame == "vehicle" else YAW_LOCK | YAW_IN_EARTH_FRAME)
+    q = frames.quaternion_from_euler(D(yaw_deg), D(pitch_deg), D(roll_deg))
+    packet = sender.gimbal_device_set_attitude_encode(1, 154, flags, [float(v) for v in q], math.nan, math.nan,
+                                                      math.nan).pack(sender)
+    (msg,) = mavlink.MAVLink(None).parse_buffer(packet)
+    device.handle(msg)
+
+
+def _run(device, seconds):
+    """Advance ``seconds``; the yaw joint's path, rad, every 10 ms."""
+    path = []
+    for _ in range(int(round(seconds / 0.01))):
+        device.advance_to(device._k + 10)
+        path.append(device.q_rad[0])
+    return np.array(path)
+
+
+AT_YAW_LIMIT, AT_ROLL_LIMIT = 4, 1  # GIMBAL_DEVICE_ERROR_FLAGS
+
+
+def settle_s(rate_rad_s=3.0):
+    """The time the attitude law takes past its slew at the rate limit r: from the error r/k where
+    the proportional law takes over down to 1e-5 rad, ln(r/(k·1e-5))/k (0.48 s at r = 3 rad/s and
+    k = 20 /s), plus 0.05 s for the rate loops (time constants below 7 ms)."""
+    return math.log(rate_rad_s / (20.0 * 1e-5)) / 20.0 + 0.05
+
+
+SETTLE_S = settle_s()
+
+
+def test_yaw_turns_the_way_inside_its_stops():
+    """With ±170° yaw stops: the yaw joint from +170° to −170° turns back through 0 (340° at the
+    3 rad/s limit, then the proportional tail) and arrives, never passing a stop and never flagged;
+    from −170° to +90° it turns up through 0 (260°). (The protocol's yaw is the joint's, negated.)"""
+    device, link = _in_process_device(8.0)
+    _command_attitude(device, -170.0)  # joint +170°
+    _run(device, 170 / math.degrees(3.0) + SETTLE_S)
+    assert abs(device.q_rad[0] - D(170)) < 1e-5
+    for target_deg, travel_deg in ((-170.0, 340.0), (90.0, 260.0)):
+        start = len(link.statuses)
+        _command_attitude(device, -target_deg)
+        path = _run(device, travel_deg / math.degrees(3.0) + SETTLE_S)
+        assert abs(device.q_rad[0] - D(target_deg)) < 1e-5, np.degrees(device.q_rad)
+        assert np.all(np.abs(path) <= D(170) + 1e-9)
+        steps = np.diff(path)
+        assert np.all(steps * np.sign(D(target_deg) - path[0]) > -1e-9)  # one way, through 0
+        assert not any(s.failure_flags & AT_YAW_LIMIT for s in link.statuses[start:])
+
+
+@pytest.mark.parametrize("limits_deg", [{0: 170.0, 2: -90.0}, {0: -170.0, 2: 45.0}, {1: 45.0}, {1: -45.0}])
+def test_targets_at_inside_and_beyond_each_limit(limits_deg):
+    """Each joint's limits (yaw with pitch, roll alone): a target exactly at the limit is reached
+    and not flagged; 0.1° inside, reached; 0.1° beyond, the joint goes to the limit (the nearest
+    reachable attitude) and AT_*_LIMIT is reported while it is commanded. By hand, the Z-Y-X angles
+    (yaw, pitch, 0) are the joints (−yaw, 0, pitch) and (0, 0, roll) the joints (0, roll, 0)."""
+    flags = (AT_YAW_LIMIT, AT_ROLL_LIMIT, AT_PITCH_LIMIT)
+
+    def command(offset_deg):
+        joints = {j: limit + math.copysign(1.0, limit) * offset_deg for j, limit in limits_deg.items()}
+        _command_attitude(device, -joints.get(0, 0.0), joints.get(2, 0.0), joints.get(1, 0.0))
+
+    device, link = _in_process_device(4.0)
+    command(0.0)
+    _run(device, max(abs(v) for v in limits_deg.values()) / math.degrees(3.0) + SETTLE_S)
+    for offset_deg in (0.0, -0.1, 0.1, 0.0):  # outward offsets are positive
+        command(offset_deg)
+        start = len(link.statuses)
+        _run(device, SETTLE_S)
+        expected = np.zeros(3)
+        for j, limit in limits_deg.items():
+            expected[j] = D(limit + math.copysign(1.0, limit) * min(offset_deg, 0.0))
+        assert np.abs(device.q_rad - expected).max() < 1e-5, (offset_deg, np.degrees(device.q_rad))
+        beyond = sum(flags[j] for j in limits_deg) if offset_deg > 0 else 0
+        assert link.statuses[-1].failure_flags == beyond
+        assert not any(s.failure_flags & ~beyond for s in link.statuses[start:])
+
+
+_yaw_joint = st.floats(-170.0, 170.0)
+_pitch_joint = st.floats(-90.0, 45.0)
+
+
+@settings(max_examples=5, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(start=st.tuples(_yaw_joint, _pitch_joint), target=st.tuples(_yaw_joint, _pitch_joint))
+def test_every_reachable_target_is_reached_in_the_time_its_rate_limit_implies(start, target):
+    """From any reachable (yaw, pitch) joints to any other, the joints are within 1e-5 rad of the
+    target after the largest joint travel at the rate limit plus settle_s (the slack: the
+    proportional tail to 1e-5 rad and the rate loops' lag). Joints by hand as above. The rate limit
+    is 6 rad/s here, to halve the simulated time."""
+    rate = 6.0
+    device, _ = _in_process_device(2 * (D(340) / rate + settle_s(rate)) + 0.1, max_rate_rad_s=rate)
+    previous = np.zeros(3)
+    for yaw_deg, pitch_deg in (start, target):
+        goal = np.array([D(yaw_deg), 0.0, D(pitch_deg)])
+        _command_attitude(device, -yaw_deg, pitch_deg)
+        _run(device, np.abs(goal - previous).max() / rate + settle_s(rate))
+        assert np.abs(device.q_rad - goal).max() < 1e-5, (np.degrees(device.q_rad), yaw_deg, pitch_deg)
+        previous = goal
+
+
+def test_reachable_joint_angle_by_hand():
+    from gimbal_lab.mavlink.device import reachable_joint_angle as reach
+
+    lo, hi = D(-170), D(170)
+    assert reach(D(-170), D(170), lo, hi) == (D(-170), True)  # no turn of it lies across the stops
+    assert reach(D(190), D(0), lo, hi) == (pytest.approx(D(-170)), True)  # 190° is −170°
+    assert reach(D(175), D(0), lo, hi) == (hi, False) and reach(D(-175), D(0), lo, hi) == (lo, False)
+    assert reach(D(180), D(100), lo, hi) == (hi, False) and reach(D(180), D(-100), lo, hi) == (lo, False)
+    assert reach(D(170) + 5e-7, 0.0, lo, hi) == (hi, True)  # within float32's 2.4e-7 rad twice over
+    assert reach(D(170) + 2e-6, 0.0, lo, hi) == (hi, False)
+    # a joint with more than a turn of range: the turn nearest the joint now
+    assert reach(D(10), D(300), D(-400), D(400)) == (pytest.approx(D(370)), True)
+    assert reach(D(10), D(-300), -math.inf, math.inf) == (pytest.approx(D(-350)), True)

@@ -14,9 +14,14 @@ built by :func:`simulated_gimbal`, and speaks MAVLink 2 on a link:
     frame becomes the axes' rate references, w = A(q)⁻¹·ω (:func:`frames.angular_velocity_to_joint_rates`,
     A from the DH Jacobian), recomputed every ``control_period_s`` as the joints move; a NaN
     component counts as 0;
-  - **attitude**: a proportional attitude law, ω = k·log(R_ref·R_cur⁻¹) (the rotation vector of
-    the error, in vehicle-frame axes, k = ``attitude_gain_per_s``, 20 /s by default: the stabilised
-    mount's gain) plus any feed-forward rate, then as for rates;
+  - **attitude**: a proportional law in the joints, w = k·(q* − q) (k = ``attitude_gain_per_s``,
+    20 /s by default: the stabilised mount's gain) plus any feed-forward rate as for rates. q* are
+    the joint angles of the commanded attitude on the body now (:func:`frames.quaternion_to_joints`),
+    each taken at the whole turn that lies inside the joint's [min, max] nearest the joint
+    (:func:`reachable_joint_angle`): a joint never heads for a target across its stops, so yaw
+    +170° → −170° with ±170° stops turns back through 0. A target outside a joint's range goes
+    to the limit nearest it, and GIMBAL_DEVICE_ERROR_FLAGS_AT_*_LIMIT is reported while it is
+    commanded. Near the target this is the attitude law ω = k·log(R_ref·R_cur⁻¹) to first order;
   - the references are scaled down together so that none exceeds ``max_rate_rad_s``, and each
     joint's is bounded by k·(limit − q) towards its limits (the joints approach a limit
     exponentially and stop there; GIMBAL_DEVICE_ERROR_FLAGS_AT_*_LIMIT is reported while the bound
@@ -179,6 +184,38 @@ def firmware_version_word(version: str) -> int:
     parts = [int(p) if p.isdigit() else 0 for p in (version.split(".") + ["0", "0"])[:3]]
     major, minor, patch = (p & 0xFF for p in parts)
     return (patch << 16) | (minor << 8) | major
+
+
+def reachable_joint_angle(target_rad: float, q_rad: float, lo_rad: float, hi_rad: float) -> tuple[float, bool]:
+    """The joint angle the attitude law steers to for a target angle ``target_rad`` (any turn).
+
+    A joint angle and the same plus any whole turn give the same attitude: of the turns of
+    ``target_rad`` inside [lo_rad, hi_rad] the one nearest the joint's angle ``q_rad`` is taken, so
+    the joint turns the way that stays inside its range (yaw +170° to −170° with ±170° stops goes
+    back through 0, not across ±180°). A target no turn of which is inside (within 1e-6 rad: a
+    float32 quaternion holds an angle to 2.4e-7 rad, so a target sent exactly at a limit counts as
+    at it) goes to the limit nearest it in angle, and the second value is False.
+
+    Returns
+    -------
+    (float, bool)
+        The angle, rad, inside [lo_rad, hi_rad]; whether the target is reachable.
+    """
+    eps = 1e-6
+    turn = 2.0 * math.pi
+    n_min = math.ceil((lo_rad - eps - target_rad) / turn) if math.isfinite(lo_rad) else -math.inf
+    n_max = math.floor((hi_rad + eps - target_rad) / turn) if math.isfinite(hi_rad) else math.inf
+    if n_min <= n_max:
+        n = min(max(round((q_rad - target_rad) / turn), n_min), n_max)
+        return min(max(target_rad + turn * n, lo_rad), hi_rad), True
+
+    def gap(a, b):
+        return abs((a - b + math.pi) % turn - math.pi)
+
+    to_lo, to_hi = gap(target_rad, lo_rad), gap(target_rad, hi_rad)
+    if to_lo == to_hi:  # right opposite the middle of the range: the limit nearer the joint
+        return (lo_rad if abs(q_rad - lo_rad) < abs(q_rad - hi_rad) else hi_rad), False
+    return (lo_rad if to_lo < to_hi else hi_rad), False
 
 
 def _whole_number(value, high: int = 2**24) -> int | None:
@@ -438,17 +475,20 @@ class SimulatedGimbalDevice:
         q = self.mount.q
         R_vb, psi, psi_rate = self._body_state()
         Rz = frames.rot_z(psi)
+        flags = 0
+        w = np.zeros(3)
         if self._mode == "attitude":
-            R_cur = frames.gimbal_attitude_matrix(self.kinematics, q, R_vb)
             R_ref = self._R_ref if self._frame == "vehicle" else Rz.T @ self._R_ref
-            error = Rotation.from_matrix(R_ref @ R_cur.T).as_rotvec()
-            omega = self.attitude_gain_per_s * error
-        else:
-            omega = np.zeros(3)
+            q_target = frames.quaternion_to_joints(self.kinematics, frames.quaternion_from_matrix(R_ref), R_vb)
+            for i in range(3):
+                q_target[i], reachable = reachable_joint_angle(q_target[i], q[i], self._lo[i], self._hi[i])
+                if not reachable:
+                    flags |= _LIMIT_FLAGS[i]
+            w = self.attitude_gain_per_s * (q_target - q)
         # the commanded (feed-forward) rate, relative to its frame → inertial, in vehicle axes
-        omega = omega + (self._omega_cmd + psi_rate * _Z if self._frame == "vehicle" else Rz.T @ self._omega_cmd)
+        omega = self._omega_cmd + psi_rate * _Z if self._frame == "vehicle" else Rz.T @ self._omega_cmd
         try:
-            w = frames.angular_velocity_to_joint_rates(self.kinematics, q, omega, R_vb)
+            w = w + frames.angular_velocity_to_joint_rates(self.kinematics, q, omega, R_vb)
         except ValueError:  # at the roll ±90° singularity: hold
             w = np.zeros(3)
         peak = float(np.max(np.abs(w)))
@@ -457,7 +497,6 @@ class SimulatedGimbalDevice:
         k_lim = self.attitude_gain_per_s
         upper = k_lim * (self._hi - q)
         lower = k_lim * (self._lo - q)
-        flags = 0
         for i in range(3):
             if w[i] > upper[i]:
                 w[i] = upper[i]
