@@ -12,6 +12,9 @@ Sphere (paper §3.2.1, Figs. 2–4)
       d = r·f/R and x₀ = d·(û, v̂, 1)ᵀ with (û, v̂, 1)ᵀ = K⁻¹(u, v, 1)ᵀ.
     * :func:`locate_sphere_ellipse`, the exact cone method the paper names but does not use:
       fit a conic to the contour and decompose the cone it spans with the centre of projection.
+    * :func:`locate_sphere_streak`, the lab's blur-aware addition: range from the solid angle of
+      the pixels' coverage (:func:`sphere_coverage`), which a streak does not change, and the
+      centre at mid-exposure; the cone fit on a sharp frame.
 
     An occluder or the image border that cuts the silhouette makes the detection
     :attr:`~SphereDetection.partial`; the cone method then fits the visible arc only
@@ -62,6 +65,10 @@ __all__ = [
     "SphereDetector",
     "locate_sphere_circle",
     "locate_sphere_ellipse",
+    "locate_sphere_streak",
+    "sphere_coverage",
+    "SphereCoverage",
+    "STREAK_MIN_PX",
     "locate_sphere_circle_undistorted",
     "circle_method_estimate",
     "sphere_silhouette_px",
@@ -1198,7 +1205,12 @@ def locate_sphere_ellipse(
         xy = undistort(intrinsics.to_normalised(points), distortion)
     except UndistortionError:
         return None
-    cone = fit_conic(xy)
+    return _sphere_from_cone(fit_conic(xy), radius_m)
+
+
+def _sphere_from_cone(cone: np.ndarray | None, radius_m: float) -> np.ndarray | None:
+    """Step 3 of :func:`locate_sphere_ellipse`: the sphere's centre (m) from the conic Q fitted in
+    normalised coordinates; None when there is no conic or it is not a cone a sphere makes."""
     if cone is None:
         return None
     eigenvalues, eigenvectors = np.linalg.eigh(cone)
@@ -1218,6 +1230,290 @@ def locate_sphere_ellipse(
     if direction[2] < 0:
         direction = -direction
     return (radius_m / math.sqrt(sin2_alpha)) * direction
+
+
+# --------------------------------------------------------------------------------------------
+# Motion-blurred sphere
+# --------------------------------------------------------------------------------------------
+
+#: Below this streak (px, :attr:`SphereCoverage.streak_px`) :func:`locate_sphere_streak` returns
+#: the exact cone fit of the outline (:func:`locate_sphere_ellipse`): a sharp silhouette's edge
+#: places the sphere better than its coverage does, and the coverage's own estimate of the streak
+#: reads 1.2–1.5 px on a sharp sphere under sensor noise of std 2 grey levels (measured, radius
+#: 28 px), so a pixel's streak cannot be told from none. The cone fit errs by about a millimetre
+#: at 3 m on a 2 px streak (measured, same sphere).
+STREAK_MIN_PX = 2.0
+
+#: Pixels of lower coverage are left out of the second moments of :func:`sphere_coverage` (not out
+#: of its solid angle): a background pixel's noise in α (about 0.04 for sensor noise of std 2 grey
+#: levels) is weighted there by its squared distance, ≈ σ·√N·ρ²/A px² from N pixels at ρ px around
+#: a blob of area A: 1 px² and more, against L²/12 for a streak of L px. Leaving out the soft ends'
+#: slivers below it reads a streak up to about 10 % short (measured over 5–40 px).
+_MOMENT_COVERAGE = 0.15
+
+#: A pixel whose coverage α reaches this counts as wholly target when the target's colour is
+#: estimated (:func:`sphere_coverage`); 1 − this is about 2.5 times the noise of α for a
+#: sensor noise of std 2 grey levels on the study's sky and grass.
+_PURE_COVERAGE = 0.95
+
+
+@dataclass(frozen=True, eq=False)
+class SphereCoverage:
+    """A sphere's image read as coverage: the fraction of the exposure each pixel saw the sphere
+    (:func:`sphere_coverage`).
+
+    Attributes
+    ----------
+    ray : ndarray, shape (3,)
+        Unit direction d to the sphere's centre at mid-exposure: the coverage-weighted mean of
+        the pixels' unit rays (camera optical frame).
+    solid_angle_sr : float
+        Ω = Σ αᵢ ωᵢ, the silhouette's solid angle (steradians), with ωᵢ the pixel's own.
+    half_angle_rad : float
+        The sphere's angular radius α₀, from Ω = 2π(1 − cos α₀), radians.
+    streak_px : float
+        The streak's length L in the camera turned toward d (√(12 (λ₁ − λ₂)) from the
+        coverage's second moments, up to 10 % short), pixels.
+    direction : ndarray, shape (2,)
+        Unit vector along the streak in that turned camera (its sign is arbitrary).
+    """
+
+    ray: np.ndarray
+    solid_angle_sr: float
+    half_angle_rad: float
+    streak_px: float
+    direction: np.ndarray
+
+
+def _coverage(colours: np.ndarray, inside: np.ndarray, behind: np.ndarray) -> np.ndarray:
+    """α = 1 − β with each colour c written a·ĉ + β·b (least squares over the channels), ĉ the
+    target's unit colour and b the background behind that pixel; shape of ``colours[..., 0]``."""
+    hue = inside / np.linalg.norm(inside)
+    hh, hb, bb = 1.0, np.einsum("...c,c->...", behind, hue), np.einsum("...c,...c->...", behind, behind)
+    hc, bc = np.einsum("...c,c->...", colours, hue), np.einsum("...c,...c->...", colours, behind)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        beta = (hh * bc - hb * hc) / (hh * bb - hb * hb)
+    return np.where(np.isfinite(beta), 1.0 - beta, 0.0)
+
+
+def _window_rays(box, intrinsics: Intrinsics, distortion):
+    """Unit rays (h, w, 3) and solid angles (h, w), sr, of the pixels in ``box`` = (u0, v0, u1, v1)."""
+    u0, v0, u1, v1 = box
+    # pixel centres and the half-pixel points around them, undistorted to normalised coordinates
+    uu, vv = np.meshgrid(np.arange(u0 - 0.5, u1, 0.5), np.arange(v0 - 0.5, v1, 0.5))
+    xy = undistort(intrinsics.to_normalised(np.column_stack((uu.ravel(), vv.ravel()))), distortion)
+    x, y = (c.reshape(uu.shape) for c in xy.T)
+    centre = np.s_[1::2, 1::2]
+    # Jacobian of pixel → normalised coordinates by central differences over one pixel
+    dx_du, dy_du = x[1::2, 2::2] - x[1::2, :-1:2], y[1::2, 2::2] - y[1::2, :-1:2]
+    dx_dv, dy_dv = x[2::2, 1::2] - x[:-1:2, 1::2], y[2::2, 1::2] - y[:-1:2, 1::2]
+    rays = np.stack((x[centre], y[centre], np.ones_like(x[centre])), axis=-1)
+    norm = np.linalg.norm(rays, axis=-1)
+    # the solid angle of a patch dA of the plane z = 1 at a ray of length n is dA/n³
+    omega = np.abs(dx_du * dy_dv - dx_dv * dy_du) / norm**3
+    return rays / norm[..., None], omega
+
+
+def sphere_coverage(
+    rgb: np.ndarray,
+    detection: SphereDetection,
+    intrinsics: Intrinsics,
+    distortion: BrownConrady | KannalaBrandt | None = None,
+    mixing: str = "linear",
+) -> SphereCoverage | None:
+    """Direction and solid angle of a sphere from its pixels' coverage, motion blur or not.
+
+    A frame integrates light over the exposure, so a pixel's colour is the mean over the
+    exposure of the sphere's and the background's colours weighted by whether the sphere covered
+    it: c = α·c_in + (1 − α)·c_out, with α the fraction of the exposure it did (its coverage,
+    including the part of the pixel's area: anti-aliasing). Summed over pixels, the coverage is
+    the time average of the silhouette: blur moves it but does not change its amount. Hence,
+    with ωᵢ each pixel's solid angle and r̂ᵢ its unit ray,
+
+    * Ω = Σ αᵢ ωᵢ = the mean over the exposure of the silhouette's solid angle 2π(1 − cos α₀)
+      (sin α₀ = R/D for a sphere of radius R at range D), whatever the streak's length, shape or
+      direction: cos α₀ = 1 − Ω/(2π);
+    * a cap of half-angle α₀ about the direction d sums its rays to ∫ r̂ dΩ = π sin²α₀ · d, so
+      the coverage-weighted sum Σ αᵢ ωᵢ r̂ᵢ lies along the time average of d(t): the
+      mid-exposure direction for a uniform, straight sweep;
+    * in the camera turned toward d (where the silhouette is a disc of radius f·tan α₀) the
+      coverage's second moments are the disc's, r²/4 in every direction, plus L²/12 along a
+      straight uniform streak of length L: L = √(12 (λ₁ − λ₂)) from their eigenvalues (taken
+      over the pixels of coverage ≥ 0.15, which reads L up to 10 % short; see
+      :data:`_MOMENT_COVERAGE`). The range does not use L.
+
+    The width of the blob's outline across the streak does not give the disc's size: a
+    detector thresholding at coverage t sees |y| ≤ √(r² − t²L²/4) across it and r + L(1/2 − t)
+    along it, both depending on t (docs/design.md, "The paper's methods as equations").
+
+    Steps: the region is the detection's blob dilated by 1.25 × its enclosing radius + 3 px
+    (to hold the soft ends of a streak up to about 2R), cut by the image's border; the
+    background b behind each of its pixels is a plane per channel (c₀ + c_u·u + c_v·v) fitted to
+    a 2-px ring around it; the target's unit colour ĉ is that of the blob's interior pixels
+    (eroded by 2 px) that are wholly target (coverage ≥ 0.95, found twice over from the 10 % of
+    them most unlike their background). Each pixel is then written c = a·ĉ + β·b (least squares
+    over the three channels, in the ``mixing`` space) and α = 1 − β, which holds for a shaded
+    sphere, whose brightness varies but not its hue.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (H, W, 3), uint8
+        The frame the detection came from.
+    detection : SphereDetection
+        The blob, from :class:`SphereDetector` on ``rgb`` (its ``outline_px`` is used).
+    intrinsics : Intrinsics
+    distortion : BrownConrady or KannalaBrandt, optional
+        Lens model of ``rgb``: each pixel's ray and solid angle are taken through it.
+    mixing : {"linear", "srgb"}
+        Where a pixel mixes its two colours (see :func:`refine_edge_points`): "linear" light
+        for a camera and for the lab's motion blur, which averages in linear light.
+
+    Returns
+    -------
+    SphereCoverage or None
+        None when the blob touches the image border (``detection.touches_border``), when no
+        interior pixel is left after the erosion, or when a pixel's ray cannot be undistorted.
+        A region that reaches the border is cut there: a streak's soft end beyond it is lost.
+
+    Notes
+    -----
+    The lab's addition, not the paper's. Assumes the background around the sphere is smooth
+    (a plane in colour across the region: the study's sky is): a textured one (the study's
+    checkered grass, whose stripes change its brightness by tens of percent) is read as coverage
+    and the range is then off by 5–10 % (measured on the lab's frames), and a second object in
+    the region adds its own coverage. On the lab's blurred frames with the sky behind, the range
+    is 1.5–1.8 % short (47–54 mm at 3.1 m, tested), against 0.1 % on the analytic frames; the
+    renderer's anti-aliased rim, resolved in sRGB on a sharp frame (where "linear" reads 0.8 %
+    short and "srgb" 0.1 % long), is the likely part. It also assumes that some pixel saw the
+    sphere for the whole exposure (a streak shorter than the silhouette's diameter, L < 2r):
+    otherwise the target's colour is
+    never seen pure and Ω is overestimated by up to L/(2r). The direction is the mid-exposure
+    one for a straight, uniform sweep; a curved sweep gives the mean of the path (off its
+    middle by up to the path's sagitta), a non-uniform one the time-weighted mean. Ω is the
+    time-mean of the solid angle, which differs from the mid-exposure one by the second-order
+    change of range within the exposure.
+    """
+    rgb = _check_rgb(rgb)
+    _check_intrinsics(intrinsics)
+    distortion = _check_distortion(distortion)
+    if mixing not in EDGE_MIXING:
+        raise ValueError(f"mixing must be one of {sorted(EDGE_MIXING)}, got {mixing!r}")
+    height, width = rgb.shape[:2]
+    outline = np.asarray(detection.outline_px, dtype=float)
+    margin = int(math.ceil(1.25 * detection.radius_px)) + 3
+    if detection.touches_border:
+        return None
+    lo = np.maximum(np.floor(outline.min(axis=0)).astype(int) - margin - 2, 0)
+    hi = np.minimum(np.ceil(outline.max(axis=0)).astype(int) + margin + 3, (width, height))
+    box = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
+    window = EDGE_MIXING[mixing][rgb[box[1] : box[3], box[0] : box[2]]].astype(float)
+    blob = np.zeros(window.shape[:2], np.uint8)
+    cv2.fillPoly(blob, [np.round(outline - lo).astype(np.int32)], 1)
+    interior = cv2.erode(blob, np.ones((3, 3), np.uint8), iterations=2).astype(bool)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+    region = cv2.dilate(blob, disc)
+    ring = cv2.dilate(region, np.ones((5, 5), np.uint8)).astype(bool) & ~region.astype(bool)
+    region = region.astype(bool)
+    if not interior.any() or not ring.any():
+        return None
+    # the background behind the region: a plane per channel through the ring around it
+    rows, cols = np.indices(region.shape, dtype=float)
+    design = np.stack((np.ones_like(rows), cols, rows), axis=-1)
+    plane = np.linalg.lstsq(design[ring], window[ring], rcond=None)[0]  # (3, 3): terms × channels
+    behind = design @ plane
+    colours, backgrounds = window[interior], behind[interior]
+    unlike = np.einsum("nc,nc->n", colours, backgrounds) / (
+        np.linalg.norm(colours, axis=1) * np.linalg.norm(backgrounds, axis=1) + 1e-12)
+    inside = colours[unlike <= np.quantile(unlike, 0.1)].mean(axis=0)
+    for _ in range(2):
+        pure = colours[_coverage(colours, inside, backgrounds) >= _PURE_COVERAGE]
+        if len(pure) == 0:
+            return None
+        inside = pure.mean(axis=0)
+    alpha = np.where(region, _coverage(window, inside, behind), 0.0)
+    try:
+        rays, omega = _window_rays(box, intrinsics, distortion)
+    except UndistortionError:
+        return None
+    weight = alpha * omega
+    solid_angle = float(weight.sum())
+    if not 0.0 < solid_angle < 2 * math.pi:
+        return None
+    mean_ray = np.einsum("hw,hwk->k", weight, rays)
+    ray = mean_ray / np.linalg.norm(mean_ray)
+    if ray[2] <= 0:
+        return None
+    # second moments in the camera turned toward the ray (there the silhouette is a disc)
+    e1 = np.array([1.0, 0.0, 0.0]) - ray[0] * ray
+    e1 /= np.linalg.norm(e1)
+    turn = np.vstack((e1, np.cross(ray, e1), ray))
+    turned = rays[region] @ turn.T
+    focal_px = 0.5 * (intrinsics.fx + intrinsics.fy)
+    q = focal_px * turned[:, :2] / turned[:, 2:3]
+    # pixels of coverage below _MOMENT_COVERAGE are left out of the moments: a background pixel's
+    # noise is weighted by its squared distance there, which the soft ends' slivers are not worth
+    w = np.where(alpha[region] >= _MOMENT_COVERAGE, np.minimum(alpha[region], 1.0), 0.0) * omega[region]
+    w /= w.sum()
+    q -= w @ q
+    moments = (q * w[:, None]).T @ q
+    eigenvalues, eigenvectors = np.linalg.eigh(moments)
+    return SphereCoverage(
+        ray=ray,
+        solid_angle_sr=solid_angle,
+        half_angle_rad=math.acos(1.0 - solid_angle / (2 * math.pi)),
+        streak_px=math.sqrt(12.0 * max(eigenvalues[1] - eigenvalues[0], 0.0)),
+        direction=eigenvectors[:, 1],
+    )
+
+
+def locate_sphere_streak(
+    rgb: np.ndarray,
+    detection: SphereDetection,
+    intrinsics: Intrinsics,
+    radius_m: float,
+    distortion: BrownConrady | KannalaBrandt | None = None,
+    mixing: str = "linear",
+) -> np.ndarray | None:
+    """Sphere centre at mid-exposure, blur-aware: range from the silhouette's solid angle.
+
+    :func:`sphere_coverage` gives the direction d (the coverage-weighted mean ray) and the
+    angular radius α₀ (Ω = 2π(1 − cos α₀)); the range is D = r/sin α₀, the same exact geometry
+    as the cone fit (:func:`locate_sphere_ellipse`: sin α = r/D), and the centre D·d. On the
+    optical axis this is the disc's angular diameter: tan α₀ = ρ/f for a disc of radius ρ px.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (H, W, 3), uint8
+        The frame the detection came from.
+    detection : SphereDetection
+    intrinsics : Intrinsics
+    radius_m : float
+        True sphere radius r, metres.
+    distortion : BrownConrady or KannalaBrandt, optional
+        Lens model of ``rgb`` (None: pinhole, or already rectified).
+    mixing : {"linear", "srgb"}
+        See :func:`sphere_coverage`.
+
+    Returns
+    -------
+    ndarray, shape (3,) or None
+        Sphere centre at mid-exposure in the camera optical frame, metres; None only where the
+        fallback gives None.
+
+    Notes
+    -----
+    The lab's addition (docs/design.md, "The paper's methods as equations"); the derivation and
+    the assumptions are :func:`sphere_coverage`'s. Falls back to :func:`locate_sphere_ellipse`
+    on the same detection (the exact cone fit of its outline) when the coverage cannot be read
+    (the blob touches the border, a ray cannot be undistorted) and when the streak is
+    shorter than :data:`STREAK_MIN_PX`: on a sharp frame the outline's edge is the better
+    measure (no background colour to estimate).
+    """
+    radius_m = _check_radius(radius_m)
+    coverage = sphere_coverage(rgb, detection, intrinsics, distortion, mixing)
+    if coverage is None or coverage.streak_px < STREAK_MIN_PX:
+        return locate_sphere_ellipse(detection, intrinsics, radius_m, distortion=distortion)
+    return (radius_m / math.sin(coverage.half_angle_rad)) * coverage.ray
 
 
 # --------------------------------------------------------------------------------------------
