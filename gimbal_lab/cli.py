@@ -14,12 +14,37 @@ a job scheduler's time limit) stops a command as Ctrl-C does, says the same, and
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import os
 import signal
 import sys
 import threading
+
+
+def _interrupted_at_start(signum, frame):
+    """Ctrl-C while the command line starts or ends (imports, parsing, exit): one line and exit 130,
+    never a traceback. SystemExit unwinds quietly through any import in progress."""
+    try:
+        sys.stderr.write("\ngimbal-lab: interrupted\n")
+    except Exception:  # noqa: BLE001 - stderr closed: the exit status says it
+        pass
+    raise SystemExit(130)
+
+
+def _launched() -> bool:
+    """Is this process the ``gimbal-lab`` command (its console script, or ``python -m gimbal_lab.cli``),
+    rather than a program or test that imports this module?"""
+    main = sys.modules.get("__main__")
+    name = os.path.basename(getattr(main, "__file__", None) or "")
+    return name in ("gimbal-lab", "cli.py") and threading.current_thread() is threading.main_thread()
+
+
+# First of all, before the imports below: from here until the command itself runs, Ctrl-C is one
+# line (the interpreter's own start-up, before this module is imported, is beyond the package's reach).
+if _launched():
+    signal.signal(signal.SIGINT, _interrupted_at_start)
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
 
 from .argtypes import length_m, nonnegative_int, positive_int  # noqa: F401 (the commands' types, kept here too)
 
@@ -35,6 +60,7 @@ _COMMAND_MODULES = ("gimbal_lab.studies.cli", "gimbal_lab.realworld_cli", "gimba
 EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 #: Exit status after SIGTERM: 128 + the signal's number, as a shell reports a process it ended.
 EXIT_TERMINATED = 128 + signal.SIGTERM
+
 
 
 class Terminated(KeyboardInterrupt):
@@ -132,11 +158,22 @@ def _warn_in_one_line(message, category, filename, lineno, file=None, line=None)
 
 
 def main(argv=None) -> int:
+    launched = signal.getsignal(signal.SIGINT) is _interrupted_at_start
+    try:
+        return _main(argv, launched)
+    finally:
+        if launched:  # a Ctrl-C as the interpreter exits is one line too
+            signal.signal(signal.SIGINT, _interrupted_at_start)
+
+
+def _main(argv, launched: bool) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
         parser.print_help()
         return EXIT_USAGE
+    if launched:  # the command's own handling of Ctrl-C (what is kept, exit 130) takes over
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     # a command module sets ``_parser`` to its sub-parser so its errors name the sub-command
     command = getattr(args, "_parser", None) or parser
     terminated: list = []  # SIGTERM's number once it arrived

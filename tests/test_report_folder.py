@@ -1,5 +1,6 @@
 """A report folder as a unit: hand edits are refused before any work (or overwritten on purpose),
-and a report is committed whole or not at all, whatever step fails."""
+and a report is committed whole or not at all, whatever step fails. And what ``gimbal-lab run``
+meets before it reaches the folder: non-finite values in ``--config``, Ctrl-C while it starts."""
 
 from __future__ import annotations
 
@@ -336,3 +337,119 @@ def test_the_command_line_says_the_folder_is_unchanged_when_the_commit_fails(tmp
                           "failed") and err.endswith(f"the report folder {out / 'paper'} is as it was before this run "
                                                      "(nothing replaced)\n"), err
     assert _snapshot(out / "paper") == before
+
+
+
+# ------------------------------------------------------------------------------------------------
+# before the report: bad config values, Ctrl-C at start
+# ------------------------------------------------------------------------------------------------
+def _numeric_fields() -> list[tuple[str, str, str]]:
+    """(study, its TOML table, field) for every number a study's --config may set."""
+    from dataclasses import fields
+
+    from gimbal_lab.studies import STUDIES, load
+
+    found = []
+    for name in STUDIES:
+        study = load(name).Study
+        for f in fields(study):
+            value = getattr(study(), f.name)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                found.append((name, study._TABLE, f.name))
+    return found
+
+
+def test_non_finite_config_values_are_a_validation_line(tmp_path, capsys, monkeypatch):
+    """The campaign's bad-config family: every number of every study's --config set to nan, inf
+    and -inf (TOML's own literals): each is exit 2 and one line naming the field, before any run."""
+    from gimbal_lab import runner
+
+    monkeypatch.setattr(runner, "run", lambda *a, **k: pytest.fail("a run was computed"))
+    cases = [(study, table, field, literal) for study, table, field in _numeric_fields()
+             for literal in ("nan", "inf", "-inf")]
+    assert len(cases) >= 140  # 49 numbers in 6 studies (a field added later adds cases)
+    for study, table, field, literal in cases:
+        config = tmp_path / f"{study}-{field}.toml"
+        config.write_text(f"[{table}]\n{field} = {literal}\n")
+        status, err = _cli(["run", study, "--config", str(config), "--out", str(tmp_path / "out")], capsys)
+        value = {"nan": "nan", "inf": "inf", "-inf": "-inf"}[literal]
+        assert status == 2 and err == f"gimbal-lab run: error: {field} must be a finite number, got {value}\n", (
+            study, field, literal, err)
+
+
+def test_non_finite_values_inside_a_field_are_named_with_their_place():
+    from gimbal_lab.studies._params import _check_finite
+
+    _check_finite("ok", [1.0, {"a": (2, 3.5)}, "nan"])  # the string "nan" is not a number
+    with pytest.raises(ValueError, match=r"^grid\[1\]\.gain must be a finite number, got inf$"):
+        _check_finite("grid", [0.5, {"gain": float("inf")}])
+
+
+#: Seeded instants of the first 2 s of ``gimbal-lab run``'s start (the test's own random stream).
+CTRL_C_INSTANTS_S = sorted(float(t) for t in __import__("numpy").random.default_rng(2042).uniform(0.0, 2.0, 20))
+
+
+def test_ctrl_c_at_any_instant_of_start_up_is_one_line_and_exit_130(tmp_path):
+    """SIGINT at 20 seeded instants of the first 2 s of ``gimbal-lab run paper`` (imports, parsing,
+    the first runs): never a traceback from the package, exit 130 and one line. The interpreter's
+    own start-up, before the console script imports the package, is beyond its reach (Python
+    prints a KeyboardInterrupt traceback there, with no frame of gimbal_lab, or the process dies
+    of the signal before Python handles it): such an instant is counted, and may be no more than
+    a few (0.03 to 0.3 s of start-up, by the machine's load)."""
+    import signal
+    import sys
+    from concurrent.futures import ThreadPoolExecutor
+
+    exe = Path(sys.executable).parent / "gimbal-lab"
+    config = tmp_path / "tiny.toml"
+    config.write_text("[paper]\nreplicates = 2\nperiod_s = 0.3\n")
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl", "LP_NUM_THREADS": "1"}
+
+    def interrupt(i_t):
+        i, t = i_t
+        proc = subprocess.Popen([str(exe), "run", "paper", "--config", str(config), "--out", str(tmp_path / f"o{i}"),
+                                 "--store", str(tmp_path / f"s{i}"), "--quiet", "--jobs", "1"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        t0 = __import__("time").monotonic()
+        __import__("time").sleep(max(0.0, t - (__import__("time").monotonic() - t0)))
+        proc.send_signal(signal.SIGINT)
+        try:
+            _, err = proc.communicate(timeout=60)
+        finally:
+            proc.kill()
+        return t, proc.returncode, err
+
+    with ThreadPoolExecutor(4) as pool:
+        outcomes = list(pool.map(interrupt, enumerate(CTRL_C_INSTANTS_S)))
+    interpreter = 0
+    for t, status, err in outcomes:
+        if (status == -signal.SIGINT and not err) or ("KeyboardInterrupt" in err and "/gimbal_lab/" not in err):
+            interpreter += 1  # Python's own start-up (before its handler; site; the script's first import)
+            continue
+        lines = err.strip().splitlines()
+        assert status == 130 and "Traceback" not in err and "Exception ignored" not in err, (t, status, err)
+        assert len(lines) == 1 and lines[0] in ("gimbal-lab: interrupted", "gimbal-lab run: interrupted"), (t, err)
+    assert interpreter <= 5, outcomes  # 3 of the instants fall in the first 0.32 s; the rest reach the package
+
+
+def test_the_command_itself_runs_with_ctrl_c_as_keyboard_interrupt(monkeypatch):
+    """Start-up's one-line handler gives way to KeyboardInterrupt while the command runs (a sweep
+    says what it keeps), and comes back for the interpreter's exit."""
+    import signal
+
+    from gimbal_lab import cli
+    from gimbal_lab.studies import cli as studies_cli
+
+    seen = []
+    monkeypatch.setattr(studies_cli, "_run", lambda args, parser: seen.append(signal.getsignal(signal.SIGINT)) or 0)
+    previous = signal.signal(signal.SIGINT, cli._interrupted_at_start)  # as the console script sets it
+    try:
+        assert cli.main(["run", "paper"]) == 0
+        assert seen == [signal.default_int_handler]
+        assert signal.getsignal(signal.SIGINT) is cli._interrupted_at_start
+        with pytest.raises(SystemExit) as caught:
+            cli._interrupted_at_start(signal.SIGINT, None)
+        assert caught.value.code == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert not cli._launched()  # imported by a test: the process's handler is left alone

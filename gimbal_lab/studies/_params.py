@@ -71,9 +71,12 @@ class StudyParams:
     _TABLE = ""
 
     def _check_replicates(self) -> None:
-        """Validate (and normalise) ``replicates``, ``first_seed`` and ``revolutions``, naming the field."""
+        """Validate (and normalise) ``replicates``, ``first_seed`` and ``revolutions``, naming the field;
+        first, refuse a NaN or infinite number in any field (``period_s = nan`` in a TOML file)."""
         from ..config import _number
 
+        for f in fields(self):
+            _check_finite(f.name, getattr(self, f.name))
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
         set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
@@ -109,6 +112,19 @@ class StudyParams:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def _check_finite(name: str, value) -> None:
+    """Raise ValueError naming ``name`` (``name[i]``, ``name.key`` inside) if ``value`` is, or holds,
+    a NaN or infinite float."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_finite(f"{name}[{i}]", item)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _check_finite(f"{name}.{key}", item)
 
 
 def report_pyplot():
