@@ -72,6 +72,10 @@ def add_parsers(subparsers) -> None:
     trk.add_argument("--gimbal-max-age", type=float, default=0.25, metavar="SECONDS",
                      help="stop (zero rates, exit 1) when the gimbal's latest attitude status is older than this, "
                           "or its quaternion is not finite or not of unit norm (default 0.25)")
+    trk.add_argument("--via-manager", action="store_true",
+                     help="with --gimbal: steer through a gimbal manager (the device's own or an autopilot's, found by "
+                          "its GIMBAL_MANAGER_STATUS): take its primary control, send GIMBAL_MANAGER_SET_PITCHYAW rates, "
+                          "release control at the end")
     trk.add_argument("--signing-key-file", default=None, metavar="FILE",
                      help="with --gimbal: MAVLink 2 signing key (32 raw bytes or 64 hex characters); sign the commands "
                           "and refuse packets not signed with it (default: no signing)")
@@ -124,6 +128,8 @@ def _track_command(args, parser) -> int:
     out = Path(args.out)
     if args.signing_key_file is not None and args.gimbal is None:
         parser.error("--signing-key-file needs --gimbal ADDRESS (it signs the gimbal link)")
+    if args.via_manager and args.gimbal is None:
+        parser.error("--via-manager needs --gimbal ADDRESS (the link to the gimbal and its manager)")
     try:
         check_writable_folder(out, "--out")
         for name in ("track.csv", "track.mp4") + (("gimbal.csv",) if args.gimbal is not None else ()):
@@ -177,6 +183,6 @@ def _open_gimbal(args, out, calibration, parser):
         return GimbalSteer(args.gimbal, calibration.intrinsics, calibration.distortion, out,
                            timeout_s=args.gimbal_timeout, discover_timeout_s=args.gimbal_wait,
                            max_age_s=args.gimbal_max_age, say=lambda line: print(line, flush=True),
-                           signing_key_file=args.signing_key_file)
+                           signing_key_file=args.signing_key_file, via_manager=args.via_manager)
     except (GimbalLinkError, OSError) as exc:
         parser.error(f"--gimbal {args.gimbal}: {exc}")

@@ -198,3 +198,46 @@ def test_track_gimbal_signs_with_its_key_file_and_a_wrong_key_is_refused(tmp_pat
     with pytest.raises(SystemExit) as exit_:
         cli.main(argv)
     assert exit_.value.code == 2 and "--signing-key-file needs --gimbal" in capsys.readouterr().err
+
+
+def test_the_lab_device_with_a_key_is_steered_with_it_and_refuses_a_wrongly_keyed_driver(tmp_path):
+    """``gimbal-lab gimbal-device --signing-key-file`` in its own process. A driver with another key
+    finds nothing (the device does not take it as a client), and its attitude commands, sent to the
+    device's address regardless, are not executed: the device stays at home as a driver with the
+    right key sees it, until that driver sends the same command, which turns it."""
+    import subprocess
+    import sys
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    address = f"udpout:127.0.0.1:{port}"
+    process = subprocess.Popen([sys.executable, "-m", "gimbal_lab.cli", "gimbal-device", "--listen",
+                                f"udpin:127.0.0.1:{port}", "--status-rate-hz", "50", "--signing-key-file",
+                                str(key_file(tmp_path, KEY))], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    yaw_rad = 0.5
+    try:
+        # the right key first: its interpreter takes seconds to start on a busy machine
+        with MavlinkGimbal(address, request_info=True, discover_timeout_s=LIVENESS_S, timeout_s=5.0,
+                           signing_key_file=key_file(tmp_path, KEY)) as gimbal:
+            assert gimbal.info is not None and gimbal.info.component_id == mavlink.MAV_COMP_ID_GIMBAL
+            with pytest.raises(GimbalNotFound, match="no gimbal HEARTBEAT"):
+                MavlinkGimbal(address, request_info=False, discover_timeout_s=1.0,
+                              signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key"))
+            with MavlinkGimbal(address, target=gimbal.target, request_info=False, timeout_s=LIVENESS_S,
+                               signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key")) as stranger:
+                for _ in range(10):
+                    stranger.send_attitude(yaw_rad, 0.0)
+                    time.sleep(0.05)
+            time.sleep(0.5)  # the device turns 0.5 rad in well under 0.5 s when it obeys (20 /s gain)
+            report = gimbal.wait_report(LIVENESS_S)
+            assert abs(report.euler_rad[0]) < 1e-3, report.euler_rad
+            gimbal.send_attitude(yaw_rad, 0.0)
+            deadline = time.monotonic() + LIVENESS_S
+            while abs(gimbal.wait_report(LIVENESS_S).euler_rad[0] - yaw_rad) > 1e-2:
+                assert time.monotonic() < deadline
+            assert gimbal.refused_packets == 0
+        assert process.poll() is None  # the device is still up
+    finally:
+        process.kill()
+        process.wait(LIVENESS_S)

@@ -190,3 +190,31 @@ def test_camera_rates_by_hand():
     omega_cam = KIN.angular_jacobian(q, frame="camera") @ qdot
     assert np.abs(frames.camera_rates_to_angular_velocity(KIN, q, omega_cam)
                   - frames.joint_rates_to_angular_velocity(KIN, q, qdot)).max() < TOL
+
+
+def test_euler_rates_by_hand():
+    """Level: a turn about Down is the yaw rate. Yawed 90° right, the pitch axis is Rz(90°)·e_y =
+    −e_x, so ω = (−0.2, 0, 0) is a pitch rate of +0.2 rad/s (up)."""
+    np.testing.assert_allclose(frames.euler_rates_from_angular_velocity([1, 0, 0, 0], [0, 0, 0.3]), (0.3, 0, 0),
+                               rtol=0, atol=1e-15)
+    q = frames.quaternion_from_euler(math.pi / 2, 0.0, 0.0)
+    np.testing.assert_allclose(frames.euler_rates_from_angular_velocity(q, [-0.2, 0, 0]), (0, 0.2, 0),
+                               rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="not separable"):
+        frames.euler_rates_from_angular_velocity(frames.quaternion_from_euler(0.3, math.pi / 2, 0.0), [0, 0, 1])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-3.0, 3.0), st.floats(-1.4, 1.4), st.floats(-0.7, 0.7),
+       st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3))
+def test_euler_rates_match_scipy_by_central_difference(yaw, pitch, roll, omega):
+    """Oracle: scipy turns the attitude by ω·dt about the frame's axes (left product) and reads its
+    intrinsic Z-Y-X angles; their central difference over dt = 1e-6 s is the Euler rates
+    (truncation ~ ω³·dt² < 1e-11, rounding ~ 1e-16 / dt = 1e-10; tolerance 1e-7 rad/s)."""
+    R = Rotation.from_matrix(frames.matrix_from_quaternion(frames.quaternion_from_euler(yaw, pitch, roll)))
+    dt = 1e-6
+    ahead = (Rotation.from_rotvec(np.array(omega) * dt) * R).as_euler("ZYX")
+    behind = (Rotation.from_rotvec(-np.array(omega) * dt) * R).as_euler("ZYX")
+    diff = (ahead - behind + math.pi) % (2 * math.pi) - math.pi  # yaw and roll wrap at ±180°
+    np.testing.assert_allclose(frames.euler_rates_from_angular_velocity(frames.quaternion_from_euler(yaw, pitch, roll),
+                                                                        omega), diff / (2 * dt), rtol=0, atol=1e-7)

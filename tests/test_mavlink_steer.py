@@ -236,7 +236,7 @@ def test_ctrl_c_stops_the_gimbal_before_track_exits(tmp_path, video):
     with device_process() as (_, address, sent):
         child = subprocess.Popen([sys.executable, "-c", _TRACK, "track", str(video), "--target", "sphere",
                                   "--calibration", str(yaml), "--out", str(out), "--gimbal", address, "--gimbal-wait", str(LIVENESS_S), "--no-progress",
-                                  "--no-video", "--gimbal-max-age", "0.5"], stdout=subprocess.PIPE,
+                                  "--no-video", "--gimbal-max-age", "2", "--gimbal-timeout", "2"], stdout=subprocess.PIPE,
                                  stderr=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + LIVENESS_S

@@ -6,8 +6,9 @@ gimbal's HEARTBEAT (``MAV_TYPE_GIMBAL`` or a component id ``MAV_COMP_ID_GIMBAL``
 then
 
 * commands it with GIMBAL_DEVICE_SET_ATTITUDE: an attitude quaternion (angular velocity NaN) or
-  angular rates (quaternion NaN), flags from :data:`gimbal_lab.mavlink.protocol.FRAME_FLAGS`; or,
-  through an autopilot's gimbal manager, GIMBAL_MANAGER_SET_PITCHYAW;
+  angular rates (quaternion NaN), flags from :data:`gimbal_lab.mavlink.protocol.FRAME_FLAGS`; or
+  through a gimbal manager (the device's own or an autopilot's, :meth:`MavlinkGimbal.find_manager`,
+  control taken with MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE), GIMBAL_MANAGER_SET_PITCHYAW;
 * keeps every GIMBAL_DEVICE_ATTITUDE_STATUS it receives as an :class:`AttitudeReport`;
 * notices a silent device: no message from it for ``timeout_s`` (real time) or no answer to a
   request within ``timeout_s`` (lock-step) makes every later call raise :class:`GimbalLinkLost`;
@@ -280,6 +281,10 @@ class MavlinkGimbal:
         self._latest: AttitudeReport | None = None
         self._reports: deque[AttitudeReport] = deque(maxlen=history)
         self._acks: dict[int, object] = {}
+        self._command_acks: dict[tuple[tuple[int, int], int], object] = {}  # (source, command) -> COMMAND_ACK
+        self._managers: dict[tuple[int, int], float] = {}  # managers of the target heard: source -> when first
+        self.manager: tuple[int, int] | None = None
+        self.manager_status = None  # the manager's latest GIMBAL_MANAGER_STATUS
         self._info_msg = None
         self.info: GimbalDeviceInfo | None = None
         self.bad_packets = 0
@@ -379,6 +384,17 @@ class MavlinkGimbal:
         if kind == "HEARTBEAT" and (msg.type == mavlink.MAV_TYPE_GIMBAL or source[1] in GIMBAL_COMPONENT_IDS):
             with self._cond:
                 self._heard[source] = msg.type
+                self._cond.notify_all()
+        if kind in ("GIMBAL_MANAGER_STATUS", "GIMBAL_MANAGER_INFORMATION") and self._target is not None and (
+                source[0] == self._target[0] and msg.gimbal_device_id == self._target[1]):
+            with self._cond:
+                self._managers.setdefault(source, now)
+                if kind == "GIMBAL_MANAGER_STATUS" and source == self.manager:
+                    self.manager_status = msg
+                self._cond.notify_all()
+        if kind == "COMMAND_ACK" and source in (self._target, self.manager):
+            with self._cond:
+                self._command_acks[(source, msg.command)] = msg
                 self._cond.notify_all()
         if source != self._target:
             return
@@ -587,20 +603,34 @@ class MavlinkGimbal:
     def send_manager_pitch_yaw(self, pitch_rad: float = _NAN, yaw_rad: float = _NAN, pitch_rate_rad_s: float = _NAN,
                                yaw_rate_rad_s: float = _NAN, frame: str = "vehicle",
                                manager: tuple[int, int] | None = None) -> None:
-        """GIMBAL_MANAGER_SET_PITCHYAW to an autopilot's gimbal manager for this gimbal.
+        """GIMBAL_MANAGER_SET_PITCHYAW to a gimbal manager for this gimbal.
 
         Angles (pitch up, yaw right) in rad, rates in rad/s, NaN where not set; the manager
-        passes them on to the device. ``manager``: (system, component) of the manager (default:
-        the device's system, MAV_COMP_ID_AUTOPILOT1). Gimbal devices themselves ignore this
-        message, the lab's simulated one included.
+        passes them on to the device (a manager obeys only the sender in control:
+        :meth:`take_manager_control`). ``manager``: (system, component) of the manager (default:
+        the one :meth:`find_manager` found, else the device's system, MAV_COMP_ID_AUTOPILOT1).
         """
         system, component = self._require_target()
-        manager = manager or (system, mavlink.MAV_COMP_ID_AUTOPILOT1)
+        manager = manager or self.manager or (system, mavlink.MAV_COMP_ID_AUTOPILOT1)
         values = [float(v) for v in (pitch_rad, yaw_rad, pitch_rate_rad_s, yaw_rate_rad_s)]
         if any(math.isinf(v) for v in values):
             raise ValueError(f"pitch_rad, yaw_rad and their rates must be finite or NaN, got {values}")
         self._send(self._mav.gimbal_manager_set_pitchyaw_encode(manager[0], manager[1], frame_flags(frame), component,
                                                                 *values))
+
+    def send_manager_joint_rates(self, qdot_rad_s, q_rad=None) -> None:
+        """Turn the lab's gimbal's joints at ``qdot_rad_s`` (yaw, roll, pitch), rad/s, through the
+        gimbal manager (:meth:`find_manager`): GIMBAL_MANAGER_SET_PITCHYAW with the pitch and yaw
+        rates of the angular velocity those joint rates give at joints ``q_rad`` (None: the latest
+        report's) on a level body, vehicle frame
+        (:func:`frames.euler_rates_from_angular_velocity`); angles NaN. The manager holds roll
+        level itself, so the roll part of the motion is not sent."""
+        q = self._joints(q_rad)
+        omega = frames.joint_rates_to_angular_velocity(self.kinematics, q, _vector3("qdot_rad_s", qdot_rad_s))
+        yaw_rate, pitch_rate, _ = frames.euler_rates_from_angular_velocity(
+            frames.joints_to_quaternion(self.kinematics, q), omega)
+        self.send_manager_pitch_yaw(pitch_rate_rad_s=pitch_rate, yaw_rate_rad_s=yaw_rate,
+                                    manager=self._require_manager())
 
     def _send_set_attitude(self, flags: int, q, omega) -> None:
         system, component = self._require_target()
@@ -614,6 +644,80 @@ class MavlinkGimbal:
         if report is None or not np.all(np.isfinite(report.q_rad)):
             raise ValueError("q_rad is needed: no attitude report with joint angles has arrived yet")
         return report.q_rad
+
+    # ------------------------------------------------------------------ a gimbal manager
+    def find_manager(self, timeout_s: float | None = None) -> tuple[int, int]:
+        """Find a gimbal manager responsible for this device and keep it in :attr:`manager`.
+
+        A manager is the first source of the device's system whose GIMBAL_MANAGER_STATUS (which
+        managers send at a low steady rate) or GIMBAL_MANAGER_INFORMATION names the device's
+        component as its ``gimbal_device_id``: the device's own component for a gimbal with its
+        manager built in, an autopilot's otherwise. GIMBAL_MANAGER_INFORMATION is requested from
+        every component of the system meanwhile.
+
+        Raises
+        ------
+        GimbalNotFound
+            When none is heard within ``timeout_s`` (default ``discover_timeout_s``).
+        """
+        system, component = self._require_target()
+        timeout_s = self.discover_timeout_s if timeout_s is None else timeout_s
+        self._send(self._mav.command_long_encode(system, 0, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                 mavlink.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION, 0, 0, 0, 0, 0, 0))
+        found = self._wait(lambda: min(self._managers, key=self._managers.get) if self._managers else None, timeout_s)
+        if found is None:
+            raise GimbalNotFound(f"no gimbal manager for gimbal {system}/{component} on {self.address} (no "
+                                 f"GIMBAL_MANAGER_STATUS or _INFORMATION with gimbal_device_id {component}) within "
+                                 f"{timeout_s:g} s{self._refusals()}")
+        with self._cond:
+            self.manager = found
+        return found
+
+    def _require_manager(self) -> tuple[int, int]:
+        self._check()
+        if self.manager is None:
+            raise GimbalNotFound(f"no gimbal manager selected on {self.address}: call find_manager() first")
+        return self.manager
+
+    def take_manager_control(self, timeout_s: float | None = None, attempts: int = 3) -> None:
+        """Become the manager's primary control (MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: param1, param2
+        = this driver's system and component; secondary control unchanged; param7 = the device's
+        component id), as the protocol asks before pitch/yaw commands.
+
+        Raises
+        ------
+        GimbalCommandFailed
+            When the manager refuses (its COMMAND_ACK's result is named) or does not answer.
+        """
+        self._manager_command(mavlink.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, (
+            self._mav.srcSystem, self._mav.srcComponent, -1, -1, 0, 0, self._require_target()[1]), timeout_s, attempts)
+
+    def release_manager_control(self, timeout_s: float | None = None, attempts: int = 3) -> None:
+        """Give up primary control (MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, param1 = param2 = −3:
+        "remove control if in control"; secondary unchanged)."""
+        self._manager_command(mavlink.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, (
+            -3, -3, -1, -1, 0, 0, self._require_target()[1]), timeout_s, attempts)
+
+    def _manager_command(self, command: int, params, timeout_s, attempts: int):
+        """COMMAND_LONG ``command`` with seven ``params`` to the manager; its accepting COMMAND_ACK."""
+        manager = self._require_manager()
+        timeout_s = self.timeout_s if timeout_s is None else timeout_s
+        name = mavlink.enums["MAV_CMD"][command].name
+        with self._cond:
+            self._command_acks.pop((manager, command), None)
+        for confirmation in range(attempts):
+            self._send(self._mav.command_long_encode(manager[0], manager[1], command, confirmation,
+                                                     *(float(p) for p in params)))
+            ack = self._wait(lambda: self._command_acks.get((manager, command)), timeout_s)
+            if ack is None:
+                continue
+            if ack.result != mavlink.MAV_RESULT_ACCEPTED:
+                result = mavlink.enums["MAV_RESULT"].get(ack.result)
+                raise GimbalCommandFailed(f"gimbal manager {manager[0]}/{manager[1]} on {self.address} refused {name} "
+                                          f"({result.name if result else ack.result})")
+            return ack
+        raise GimbalCommandFailed(f"gimbal manager {manager[0]}/{manager[1]} on {self.address} did not answer {name} "
+                                  f"after {attempts} attempts of {timeout_s:g} s each")
 
     # ------------------------------------------------------------------ reports
     def latest(self) -> AttitudeReport | None:

@@ -72,6 +72,7 @@ __all__ = [
     "joint_rates_to_angular_velocity",
     "angular_velocity_to_joint_rates",
     "camera_rates_to_angular_velocity",
+    "euler_rates_from_angular_velocity",
 ]
 
 #: NED components of a vector given in the lab's North–West–Up world (and FRD of FLU body ones).
@@ -309,3 +310,30 @@ def camera_rates_to_angular_velocity(kinematics, q_rad, omega_cam_rad_s, R_vehic
         raise ValueError(f"omega_cam_rad_s must be three finite rates, got {omega_cam_rad_s!r}")
     R_body_cam = kinematics.T_body_cam(q_rad, check_limits=False)[:3, :3]
     return _vehicle_body(R_vehicle_body) @ F_NED_NWU @ R_body_cam @ omega
+
+
+def euler_rates_from_angular_velocity(q_wxyz, omega_rad_s) -> tuple[float, float, float]:
+    """(yaw rate, pitch rate, roll rate), rad/s, of the Z-Y-X angles of attitude ``q_wxyz`` while
+    the gimbal turns at ``omega_rad_s`` (relative to the quaternion's frame, in its axes).
+
+    With R = Rz(ψ)·Ry(θ)·Rx(φ), ω = ψ̇·e_z + θ̇·Rz(ψ)·e_y + φ̇·Rz(ψ)·Ry(θ)·e_x; this solves that
+    for (ψ̇, θ̇, φ̇). A gimbal manager's pitch and yaw rates (GIMBAL_MANAGER_SET_PITCHYAW) are θ̇ and
+    ψ̇; the manager holds roll itself.
+
+    Raises
+    ------
+    ValueError
+        For a pitch within 10⁻⁶ rad of ±90°, where yaw and roll rates are not separable.
+    """
+    yaw, pitch, _ = euler_from_quaternion(q_wxyz)
+    omega = np.asarray(omega_rad_s, dtype=float)
+    if omega.shape != (3,) or not np.all(np.isfinite(omega)):
+        raise ValueError(f"omega_rad_s must be three finite numbers, got {omega_rad_s!r}")
+    if abs(math.cos(pitch)) < 1e-6:
+        raise ValueError(f"pitch {math.degrees(pitch):g} deg is at ±90 deg: yaw and roll rates are not separable")
+    Rz = rot_z(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    M = np.column_stack([(0.0, 0.0, 1.0), Rz[:, 1], (Rz @ Ry)[:, 0]])
+    yaw_rate, pitch_rate, roll_rate = np.linalg.solve(M, omega)
+    return float(yaw_rate), float(pitch_rate), float(roll_rate)

@@ -119,6 +119,13 @@ class GimbalSteer:
     signing_key_file : str or os.PathLike, optional
         MAVLink 2 signing key for the link (:class:`~gimbal_lab.mavlink.driver.MavlinkGimbal`);
         None: no signing.
+    via_manager : bool
+        Steer through a gimbal manager (the device's own or an autopilot's) instead of the device:
+        find it, take primary control (MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE) before the first
+        frame, send each frame's joint rates as GIMBAL_MANAGER_SET_PITCHYAW pitch and yaw rates
+        (:meth:`~gimbal_lab.mavlink.driver.MavlinkGimbal.send_manager_joint_rates`; the manager
+        holds roll), and release control on :meth:`close`. The attitude is still the device's
+        status.
 
     Raises
     ------
@@ -128,7 +135,7 @@ class GimbalSteer:
 
     def __init__(self, address, intrinsics, lens, out_dir, *, timeout_s: float = 0.5, pace: bool = True,
                  max_rate_rad_s: float | None = None, discover_timeout_s: float = 5.0, max_age_s: float = MAX_AGE_S,
-                 say=None, signing_key_file=None):
+                 say=None, signing_key_file=None, via_manager: bool = False):
         from ..config import Gimbal
 
         if isinstance(max_age_s, bool) or not isinstance(max_age_s, (int, float)) or not (
@@ -142,6 +149,7 @@ class GimbalSteer:
         self.loop = None
         self.dt_s = math.nan
         self.pace = bool(pace)
+        self.via_manager = bool(via_manager)
         self.path = Path(out_dir) / "gimbal.csv"
         say = say or (lambda line: None)
         say(f"waiting up to {discover_timeout_s:g} s for a gimbal on {address} ...")
@@ -157,6 +165,10 @@ class GimbalSteer:
                 raise GimbalNotFound(f"gimbal {system}/{component} on {self.driver.address} sent no attitude status "
                                      f"(GIMBAL_DEVICE_ATTITUDE_STATUS) within {discover_timeout_s:g} s: it cannot be "
                                      f"steered without one{self.driver._refusals()}") from None
+            if self.via_manager:
+                manager = self.driver.find_manager(discover_timeout_s)
+                self.driver.take_manager_control()
+                say(f"gimbal manager {manager[0]}/{manager[1]} found; this driver is its primary control")
             self._tmp = temporary_name(self.path)
             self._handle = open(self._tmp, "w", newline="")
         except BaseException:
@@ -209,7 +221,7 @@ class GimbalSteer:
             problem = attitude_problem(report, read_s, self.max_age_s)
             if problem is not None:
                 with deferred_interrupts():  # the zero rates and their record are one step
-                    self.driver.send_rates(np.zeros(3))
+                    self._send_zero_rates()
                     self.stopped, sent = True, np.zeros(3)
                     system, component = self.driver.target
                     self.failure = UnusableAttitude(f"gimbal {system}/{component} on {self.driver.address}: {problem}; "
@@ -220,7 +232,10 @@ class GimbalSteer:
             J_cam = self.kinematics.angular_jacobian(q, frame="camera", check_limits=False)
             rate = np.asarray(self.loop.update(uv if detected else None, self.dt_s, J_cam, q), float)
             with deferred_interrupts():  # what went out is what the row says
-                self.driver.send_joint_rates(rate, q)
+                if self.via_manager:
+                    self.driver.send_manager_joint_rates(rate, q)
+                else:
+                    self.driver.send_joint_rates(rate, q)
                 sent = rate
         except GimbalLinkError as exc:
             self.failure = exc
@@ -262,10 +277,16 @@ class GimbalSteer:
             self._handle.flush()
             self.rows += 1
 
+    def _send_zero_rates(self) -> None:
+        if self.via_manager:
+            self.driver.send_manager_pitch_yaw(pitch_rate_rad_s=0.0, yaw_rate_rad_s=0.0)
+        else:
+            self.driver.send_rates(np.zeros(3))
+
     def stop(self) -> bool:
         """Send zero rates (the gimbal holds where it is); False when the link is already lost."""
         try:
-            self.driver.send_rates(np.zeros(3))
+            self._send_zero_rates()
         except GimbalLinkError:
             return False
         self.stopped = True
@@ -278,7 +299,9 @@ class GimbalSteer:
         if self._handle.closed:
             return
         try:
-            self.stop()
+            if self.stop() and self.via_manager:
+                with contextlib.suppress(GimbalLinkError):  # a manager that does not answer keeps no one waiting
+                    self.driver.release_manager_control(timeout_s=0.5, attempts=1)
         finally:
             self._handle.close()
             self.driver.close()
