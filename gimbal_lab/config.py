@@ -1319,7 +1319,7 @@ class Pointing(_Part):
 # ----------------------------------------------------------------------------------------------
 # estimator
 # ----------------------------------------------------------------------------------------------
-_SPHERE_METHODS = ("circle", "ellipse")
+_SPHERE_METHODS = ("circle", "ellipse", "streak")
 _REFINEMENTS = ("none", "subpix", "contour", "apriltag")
 _LENS_STRATEGIES = ("ignore", "undistort", "rectify")
 
@@ -1330,9 +1330,12 @@ class Estimator(_Part):
 
     Parameters
     ----------
-    sphere_method : {"circle", "ellipse"}
-        The paper's enclosing-circle estimate, or the exact cone (ellipse) method; the other is
-        recorded beside it on the same detection (``alt_*`` columns).
+    sphere_method : {"circle", "ellipse", "streak"}
+        The paper's enclosing-circle estimate, the exact cone (ellipse) method, or the blur-aware
+        one (:func:`gimbal_lab.detection.locate_sphere_streak`: range from the solid angle of the
+        pixels' coverage, centre at mid-exposure; the cone fit on a sharp frame). Circle and
+        ellipse record each other beside them on the same detection (``alt_*`` columns); streak
+        records the ellipse, the method it replaces.
     lens_strategy : {"ignore", "undistort", "rectify"}
         How the estimator treats the lens (docs/design.md, "Lens sweep"). "ignore" (the paper):
         it assumes a pinhole camera whatever the lens. "undistort": it knows the lens and
@@ -1376,7 +1379,8 @@ class _Estimator:
     """Detector + localiser for one run: image → (pixel centre, centre in camera frame, alt).
 
     For the sphere both localisers run on the same detection: the estimator's method gives the
-    estimate, the other one (circle ↔ ellipse) is recorded alongside as ``alt`` so the two can be
+    estimate, the other one (circle ↔ ellipse; the ellipse beside the streak method, which also
+    reads the frame's pixels) is recorded alongside as ``alt`` so the two can be
     compared on identical frames (the closed loop only uses the pixel centre, which they share).
 
     The lens strategy (:attr:`Estimator.lens_strategy`) decides what the localisers know: nothing
@@ -1405,7 +1409,10 @@ class _Estimator:
             else:
                 circle = lambda det: detection.locate_sphere_circle_undistorted(det, K, r, known)  # noqa: E731
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
-            self._methods = (circle, ellipse) if estimator.sphere_method == "circle" else (ellipse, circle)
+            # the frame the detection came from (set per frame in __call__): the streak method reads its pixels
+            streak = lambda det: detection.locate_sphere_streak(self._image, det, K, r, distortion=known)  # noqa: E731
+            self._methods = {"circle": (circle, ellipse), "ellipse": (ellipse, circle),
+                             "streak": (streak, ellipse)}[estimator.sphere_method]
             if not alt:
                 self._methods = self._methods[:1]
         else:
@@ -1430,6 +1437,7 @@ class _Estimator:
             if det is None:
                 return None, None, None
             self.partial = det.partial
+            self._image = image
 
             def locate(method):
                 try:

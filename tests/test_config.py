@@ -719,3 +719,37 @@ def test_a_sensor_camera_round_trips_and_records_over_its_exposure():
     flat = np.full((100, 100), 128, np.uint8)
     dim = camera.replace(light_lux=30.0)
     assert dim.add_noise(flat, np.random.default_rng(1)).std() > 2 * camera.add_noise(flat, np.random.default_rng(1)).std()
+
+
+def _blurred_disc(centre_u_px: float, streak_px: int) -> np.ndarray:
+    """A red disc of radius 25 px on grass, smeared along u over ``streak_px`` px in linear light."""
+    import cv2
+
+    linear = np.empty((480, 640, 3))
+    linear[:] = (0.05, 0.15, 0.03)
+    mask = np.zeros((480, 640), np.uint8)
+    cv2.circle(mask, (int(centre_u_px), 240), 25, 1, -1)
+    linear[mask == 1] = (0.6, 0.01, 0.01)
+    linear = cv2.filter2D(linear, -1, np.full((1, streak_px), 1.0 / streak_px))
+    encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    return np.round(255 * encoded).astype(np.uint8)
+
+
+def test_estimator_streak_reads_each_frames_pixels_and_records_the_cone_fit_beside_it():
+    from gimbal_lab import detection
+
+    estimator = Estimator(sphere_method="streak")
+    assert Estimator.from_dict(estimator.to_dict()) == estimator
+    camera, target = Camera(), Target(kind="sphere")
+    run = estimator.build(camera, target)
+    K, r = camera.intrinsics, target.sphere_radius_m
+    for u in (300.0, 360.0):  # two frames in turn: each estimate reads its own frame
+        image = _blurred_disc(u, 15)
+        det = detection.SphereDetector().detect(image)
+        uv, p, alt = run(image)
+        np.testing.assert_array_equal(p, detection.locate_sphere_streak(image, det, K, r))
+        np.testing.assert_array_equal(alt, detection.locate_sphere_ellipse(det, K, r))
+        np.testing.assert_array_equal(uv, det.center_px)
+        assert detection.sphere_coverage(image, det, K).streak_px > detection.STREAK_MIN_PX
+        assert not np.allclose(p, alt, atol=1e-3)  # a streak: the coverage, not the cone fit
+    assert estimator.build(camera, target, alt=False)(image)[2] is None
