@@ -153,6 +153,17 @@ def _known(exc: BaseException) -> tuple[int, str] | None:
     return None
 
 
+def _raised_by_ctrl_c(exc: BaseException) -> bool:
+    """Was ``exc`` raised while handling (or from) a KeyboardInterrupt, anywhere down its chain?"""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def _warn_in_one_line(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"gimbal-lab: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
 
@@ -193,6 +204,9 @@ def _main(argv, launched: bool) -> int:
         print(f"\n{command.prog}: {'SIGTERM: ' if terminated else ''}{said}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - every error is one line unless --debug
+        if _raised_by_ctrl_c(exc):  # e.g. numpy turns a Ctrl-C amid its import into an ImportError
+            print(f"\n{command.prog}: {'SIGTERM: ' if terminated else ''}interrupted", file=sys.stderr)
+            return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
         known = _known(exc)
         if known is None:
             status, message = EXIT_FAILED, (f"{type(exc).__name__}: {_one_line(exc)} (an unexpected error: run "

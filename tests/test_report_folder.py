@@ -453,3 +453,33 @@ def test_the_command_itself_runs_with_ctrl_c_as_keyboard_interrupt(monkeypatch):
     finally:
         signal.signal(signal.SIGINT, previous)
     assert not cli._launched()  # imported by a test: the process's handler is left alone
+
+
+@pytest.mark.parametrize("chained", ["from", "during"])
+def test_an_error_a_library_raises_for_a_ctrl_c_is_an_interruption(monkeypatch, capsys, chained):
+    """numpy turns a KeyboardInterrupt amid the import of its C extensions into an ImportError
+    (found at 1 of 60 instants): the command line reports the interruption, exit 130."""
+    from gimbal_lab.studies import cli as studies_cli
+
+    def run(args, parser):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            if chained == "from":
+                raise ImportError("Importing the numpy C-extensions failed") from exc
+            raise ImportError("Importing the numpy C-extensions failed")  # noqa: B904 - as numpy does
+
+    monkeypatch.setattr(studies_cli, "_run", run)
+    status, err = _cli(["run", "paper"], capsys)
+    assert status == 130 and err == "\ngimbal-lab run: interrupted\n"
+
+
+def test_an_import_error_of_its_own_is_still_an_error(monkeypatch, capsys):
+    from gimbal_lab.studies import cli as studies_cli
+
+    def run(args, parser):
+        raise ImportError("no module named nosuch")
+
+    monkeypatch.setattr(studies_cli, "_run", run)
+    status, err = _cli(["run", "paper"], capsys)
+    assert status == 1 and "ImportError: no module named nosuch (an unexpected error" in err
