@@ -109,6 +109,34 @@ def test_hypotheses_and_break_even_on_known_differences():
     assert "Break-even of L1" in text and "5 Hz, 0 ms, 0°, 0 % loss" in text
 
 
+def test_break_even_is_read_from_the_family_level_verdicts():
+    """docs/design.md, the link study: the break-even is the first level at which L1 (and L3) no
+    longer holds at the family level (Holm). At 10 Hz active is better by 8 mm with a spread of
+    6 mm (differences −8 ∓ 6 mm over 6 replicates): its 95 % interval, −8 ± 2.5706 · 6.57/√6 =
+    [−14.9, −1.1] mm (t₀.₉₇₅(5) from a printed table), lies below 0 and the gap exceeds δ, so it
+    holds as computed (p 0.031), but not after Holm in this family of 14 (adjusted p 0.12): the
+    advantage is first lost at 10 Hz, not at 5 Hz where it fails as computed too."""
+    ten, five = "10 Hz, 0 ms, 0°, 0 % loss", "5 Hz, 0 ms, 0°, 0 % loss"
+    df = made_up({link.IN_PROCESS: 0.03, REF: 0.03, ten: 0.03, five: 0.0})
+    passive = df[df["link"] == link.PASSIVE].set_index("seed")["mean_abs_error_m"].sort_index().to_numpy()
+    d = -0.008 + 0.006 * np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+    at_ten = (df["link"] == ten).to_numpy()
+    df.loc[at_ten, ["mean_abs_error_m", "mean_world_error_m"]] = np.c_[passive + d, passive + d]
+    v = link.check_hypotheses(df)
+    for cid in ("L1", "L3"):
+        row = v[(v["id"] == cid) & (v["condition"] == f"sphere, {ten}")].iloc[0]
+        half = 2.5706 * d.std(ddof=1) / math.sqrt(6)
+        assert (row["low"], row["high"]) == pytest.approx((d.mean() - half, d.mean() + half), abs=1e-6)
+        assert (row["verdict"], row["verdict_holm"]) == (stats.HOLDS, stats.INCONCLUSIVE)
+        assert row["p_value"] < 0.05 <= row["p_holm"]
+        be = link.break_even(v, cid).set_index("factor")
+        assert be.loc["status_rate_hz", "fails_at"] == ten and be.loc["status_rate_hz", "links_checked"] == 3
+    text = link.hypotheses_markdown(v, link.summary_table(df.assign(
+        detection_rate=1.0, mean_offset_px=0.0, mean_known_joint_error_rad=0.0, mean_known_age_s=0.0)))
+    assert text.count(f"| sphere | status_rate_hz | {ten} | 3 |") == 2  # L1's table and L3's
+    assert f"| sphere | status_rate_hz | {five} |" not in text
+
+
 def test_a_tiny_study_runs_end_to_end(tmp_path):
     """Two replicates of the sphere, in-process and the 5 Hz link: every file of the report, the
     replicate table's links and the known pose's age (0 in-process, up to a status period at 5 Hz).

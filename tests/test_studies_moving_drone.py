@@ -512,6 +512,54 @@ def test_sp_holds_only_against_every_passive_pipeline_and_names_the_one_that_dec
     assert all("decided against stabilised (paper)" in md.verdict_reason(r) for r in sp1.itertuples())
 
 
+#: Paired differences active (paper) − P per seed for an inconclusive SP1 on the sphere, each with
+#: the 95 % interval by hand, mean ± t·s/√6 (t₀.₉₇₅(5) = 2.5706 from a printed table, s = 1.0954 ×
+#: the spread for the ±1 pattern): the one reaching highest is neither the first, the widest, nor
+#: the one with the largest or the smallest p or the highest mean.
+_UPDOWN = np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+SP_OPEN = {
+    "fixed (paper)": 0.014 * _UPDOWN,  # [−16.1, 16.1] mm, the largest p (0.46: twice the TOST p against ±5 mm)
+    "stabilised (paper)": -0.015 + 0.030 * _UPDOWN,  # [−49.5, 19.5] mm: reaches highest (p 0.31)
+    "fixed (best)": -0.030 + 0.040 * _UPDOWN,  # [−76.0, 16.0] mm: the widest, the lowest (p 0.15)
+    "stabilised (best)": 0.004 + 0.003 * _UPDOWN,  # [0.6, 7.4] mm: does not hold at 95 % (p 0.031), not at 0.05 / 4
+}
+T975_DF5 = 2.5706
+
+
+def test_an_inconclusive_sp_row_names_the_passive_pipeline_whose_interval_reaches_highest():
+    """docs/design.md, the moving drone's SP1 and SP2: for "inconclusive" the row shows the numbers
+    of the comparison whose interval reaches highest and names that passive pipeline."""
+    df = designed_arm_replicates()
+    full_sphere = (df["arm"] == "full") & (df["target"] == "sphere")
+    seed = df["seed"].to_numpy()
+    active_paper = 0.050 + JITTER[seed]  # the designed active (paper) error of each row's seed
+    for pipeline, d in SP_OPEN.items():
+        mount, estimator = pipeline.split(" ")
+        column = "sp_paper_abs_error_m" if estimator == "(paper)" else "sp_best_abs_error_m"
+        rows = full_sphere & (df["mount"] == mount)
+        df.loc[rows, column] = (active_paper - d[seed])[rows.to_numpy()]
+    v = md.check_hypotheses(df)
+    sp1 = v[(v["id"] == "SP1") & v["condition"].str.startswith("sphere")]
+    assert len(sp1) == 6 and (sp1["verdict"] == stats.INCONCLUSIVE).all(), sp1[["condition", "verdict", "b"]]
+    assert set(sp1["b"]) == {"stabilised (paper)"}
+    d = SP_OPEN["stabilised (paper)"]
+    half = T975_DF5 * d.std(ddof=1) / math.sqrt(6)
+    assert sp1["difference"].to_numpy() == pytest.approx(np.full(6, d.mean()), abs=1e-12)
+    assert sp1["high"].to_numpy() == pytest.approx(np.full(6, d.mean() + half), abs=1e-6)
+    # its own p (inconclusive, no Bonferroni factor): the paired t-test of a zero difference,
+    # smaller than twice the TOST p here (the interval is far from inside ±δ)
+    from scipy.stats import t as student_t
+
+    p_zero = 2 * student_t.sf(abs(d.mean()) / (d.std(ddof=1) / math.sqrt(6)), 5)
+    assert sp1["p_value"].to_numpy() == pytest.approx(np.full(6, p_zero), rel=1e-6)
+    assert all("stabilised (paper)" in md.verdict_reason(r) for r in sp1.itertuples())
+    # the same choice from stats.against_every directly, in another order of the comparisons
+    a = 0.050 + JITTER
+    order = ["stabilised (best)", "fixed (best)", "stabilised (paper)", "fixed (paper)"]
+    j, verdict = stats.against_every([stats.less_than(a, a - SP_OPEN[name]) for name in order])
+    assert (order[j], verdict.verdict) == ("stabilised (paper)", stats.INCONCLUSIVE)
+
+
 def test_against_every_is_an_intersection_union_test_with_a_bonferroni_failure():
     a = np.array([1.0, 1.1, 0.9, 1.05])
     far, near = stats.less_than(a, a + 1.0 + [0, 0.1, -0.1, 0.05]), stats.less_than(a, a + 0.5 + [0, 0.1, -0.1, 0])
