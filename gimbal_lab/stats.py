@@ -17,9 +17,10 @@ start phase, same sensor-noise seed), so the comparison is paired:
   5 % against a margin M > 0 (by default δ). **Holds** when the upper one-sided 95 % bound of
   mean(A − B) lies below M; **does not hold** when the lower one-sided 95 % bound lies above M;
   otherwise **inconclusive**.
-* **"mean X lies in [L, H]"** (:func:`inside_band`, one quantity, not a pair; a filter's NEES
-  against its χ² band): **holds** when the 95 % interval of the mean lies inside (L, H); **does
-  not hold** when it lies entirely above H or below L; otherwise **inconclusive**.
+* **"mean X is x₀"** (:func:`mean_equals`, one quantity over independent replicates, not a
+  pair; a filter's mean NEES against its dimension): **does not hold** when the 95 % interval of
+  the mean excludes x₀ (the one-sample t-test); **holds** when it contains x₀ and the 90 %
+  interval lies inside x₀ ± a margin (two one-sided tests); otherwise **inconclusive**.
 
 Every verdict carries the p-value of the test that decides it, on one scale: a verdict is
 decisive at 95 % only if its p < 0.05 (see :class:`Verdict` for each rule's test). Many verdicts
@@ -60,7 +61,7 @@ __all__ = [
     "less_than",
     "equivalent",
     "non_inferior",
-    "inside_band",
+    "mean_equals",
     "against_every",
     "mean_interval",
     "verdict_table",
@@ -87,17 +88,18 @@ class Verdict:
     Attributes
     ----------
     verdict : {"holds", "does not hold", "inconclusive"}
-    kind : {"less", "equivalent", "non-inferior", "inside"}
+    kind : {"less", "equivalent", "non-inferior", "equals"}
     mean_a, mean_b : float
         Means of the two compared quantities over the replicates.
     difference : float
         Mean paired difference A − B.
     low, high : float
         Interval of the mean difference: 95 % for "less"; for "equivalent" and "non-inferior"
-        the 90 % interval, whose ends are the one-sided 95 % bounds their tests use.
+        the 90 % interval, whose ends are the one-sided 95 % bounds their tests use; for
+        "equals" the 95 % interval of the mean of A (one quantity, ``mean_b`` the stated value).
     delta : float
-        Smallest effect of interest ("less"), the equivalence margin ("equivalent") or the
-        non-inferiority margin ("non-inferior"), > 0.
+        Smallest effect of interest ("less"), the equivalence margin ("equivalent", "equals")
+        or the non-inferiority margin ("non-inferior"), > 0.
     n : int
         Number of replicates (pairs).
     confidence : float
@@ -117,6 +119,8 @@ class Verdict:
           the margin;
         * "non-inferior", holds: the one-sided t-test of H0 mean(A − B) ≥ M; does not hold: the
           one-sided t-test of H0 mean(A − B) ≤ M;
+        * "equals", does not hold: the two-sided one-sample t-test of mean A = the stated value
+          (the 95 % interval excludes it ⇔ p < 0.05); holds: the TOST p against the margin;
         * inconclusive: the smallest p among the tests that could have decided it (for "less"
           it can lie below 0.05 when the interval excludes 0 but the effect is smaller than δ).
 
@@ -408,73 +412,80 @@ def non_inferior(a, b, margin: float | None = None, alpha: float = 0.05, floor: 
                    confidence, p)
 
 
-def inside_band(values, band_low: float, band_high: float, confidence: float = 0.95) -> Verdict:
-    """Verdict on "the mean of X lies inside [band_low, band_high]" from replicate values of X.
+def mean_equals(values, expected: float, margin: float, alpha: float = 0.05) -> Verdict:
+    """Verdict on "the mean of X is ``expected``" from independent replicate values of X.
 
-    With the two-sided ``confidence`` interval of the mean (Student t):
+    With the replicates' mean x̄ and Student-t intervals on n − 1 degrees of freedom:
 
-    * **holds** when it lies inside (band_low, band_high);
-    * **does not hold** when it lies entirely above band_high or entirely below band_low;
-    * **inconclusive** otherwise.
+    * **does not hold** when the two-sided (1 − α) interval of the mean excludes ``expected``
+      (the one-sample t-test rejects mean = expected at α);
+    * **holds** when that interval contains ``expected`` and the (1 − 2α) interval lies inside
+      (expected − margin, expected + margin) (two one-sided tests at α bound the mean within the
+      margin);
+    * **inconclusive** otherwise: the data neither reject ``expected`` nor bound the mean.
+
+    The level is right for n independent replicates whatever the correlation inside each one (a
+    replicate's mean of correlated frames is one value), as long as the replicate means are near
+    normal: a mean of many frames is.
 
     Parameters
     ----------
     values : array_like, shape (n,), n >= 2
         One value per replicate (not pairs), finite.
-    band_low, band_high : float
-        The band, band_low < band_high, finite.
-    confidence : float
-        Level of the interval, in (0, 1).
+    expected : float
+        The mean the claim states (3 for the NEES of a 3-D position), finite.
+    margin : float
+        Half-width of the band within which "holds" bounds the mean, > 0, finite.
+    alpha : float
+        Level of the tests, in (0, 0.5).
 
     Returns
     -------
     Verdict
-        kind "inside"; ``mean_a`` the mean, ``difference`` the mean too (no second quantity:
-        ``mean_b`` and ``delta`` are NaN), ``low``, ``high`` the interval. ``p_value``, on the
-        scale of the other verdicts (decisive at ``confidence`` ⇔ p < 1 − confidence): when it
-        holds, twice the larger of the one-sided p of H0 mean ≤ band_low and of H0 mean ≥
-        band_high (the interval lies inside ⇔ both are below half the level); when it does not
-        hold, the two-sided t-test of mean = band_high (or band_low), the interval's own test of
-        lying beyond that end; when inconclusive, the smallest of these.
+        kind "equals"; ``mean_a`` the mean, ``mean_b`` ``expected``, ``difference`` their
+        difference, ``low``, ``high`` the (1 − α) interval of the mean (of X, not of the
+        difference), ``delta`` the margin. ``p_value`` on the scale of the other verdicts
+        (decisive ⇔ p < α): does not hold, the two-sided t-test of mean = expected; holds, the
+        TOST p against the margin (the larger one-sided p); inconclusive, the smaller of the two.
 
     Notes
     -----
-    docs/design.md, "When does a gimbal pay off?", Repairs: a filter's NEES is consistent with
-    χ²(3) when the interval of its replicate means lies inside the 95 % band of an average of N
-    χ²(3) values, [χ²₀.₀₂₅(3N)/N, χ²₀.₉₇₅(3N)/N].
+    docs/design.md, "When does a gimbal pay off?", Repairs, "Filter consistency as a verdict": a
+    filter's NEES is consistent with χ²(3) when its replicates' mean NEES is 3.
 
     Examples
     --------
-    >>> inside_band([2.9, 3.1, 3.0, 3.2], 1.6, 4.7).verdict
+    >>> mean_equals([2.9, 3.1, 3.0, 3.2], 3.0, 0.6).verdict
     'holds'
-    >>> inside_band([8.0, 9.0, 8.5], 1.6, 4.7).verdict
+    >>> mean_equals([4.4, 4.6, 4.5], 3.0, 0.6).verdict
     'does not hold'
     """
-    if not (0.0 < confidence < 1.0):
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    band_low, band_high = float(band_low), float(band_high)
-    if not (math.isfinite(band_low) and math.isfinite(band_high) and band_low < band_high):
-        raise ValueError(f"the band must be finite with band_low < band_high, got [{band_low!r}, {band_high!r}]")
+    if not (0.0 < alpha < 0.5):
+        raise ValueError(f"alpha must be in (0, 0.5), got {alpha!r}")
+    expected, margin = float(expected), float(margin)
+    if not math.isfinite(expected):
+        raise ValueError(f"expected must be finite, got {expected!r}")
+    if not (math.isfinite(margin) and margin > 0.0):
+        raise ValueError(f"margin must be a finite number > 0, got {margin!r}")
     x = np.asarray(values, dtype=float).ravel()
     if x.size < 2:
         raise ValueError(f"an interval needs at least 2 values, got {x.size}")
     if not np.all(np.isfinite(x)):
         raise ValueError("values must be finite (a replicate without a value has no mean)")
-    mean, low, high = t_interval(x, confidence)
-    above_low = _one_sided_p(x, band_low, "greater")  # H0 mean <= band_low
-    below_high = _one_sided_p(x, band_high, "less")  # H0 mean >= band_high
-    p_inside = _doubled(max(above_low, below_high))
-    p_above = _doubled(_one_sided_p(x, band_high, "greater"))  # two-sided test of band_high, mean above it
-    p_below = _doubled(_one_sided_p(x, band_low, "less"))
-    if band_low < low and high < band_high:
-        verdict, p = HOLDS, p_inside
-    elif low > band_high:
-        verdict, p = DOES_NOT_HOLD, p_above
-    elif high < band_low:
-        verdict, p = DOES_NOT_HOLD, p_below
+    mean, low, high = t_interval(x, 1.0 - alpha)
+    _, low_tost, high_tost = t_interval(x, 1.0 - 2.0 * alpha)
+    with _spread_at_rounding_level(x):
+        p_differs = float(_st.ttest_1samp(x, expected).pvalue)  # the (1 − α) interval's own test
+    p_within = max(_one_sided_p(x, expected - margin, "greater"),  # H0 mean <= expected − margin
+                   _one_sided_p(x, expected + margin, "less"))  # H0 mean >= expected + margin
+    if not (low <= expected <= high):
+        verdict, p = DOES_NOT_HOLD, p_differs
+    elif expected - margin < low_tost and high_tost < expected + margin:
+        verdict, p = HOLDS, p_within
     else:
-        verdict, p = INCONCLUSIVE, _smallest_p(p_inside, p_above, p_below)
-    return Verdict(verdict, "inside", mean, math.nan, mean, low, high, math.nan, int(x.size), confidence, p)
+        verdict, p = INCONCLUSIVE, _smallest_p(p_differs, p_within)
+    return Verdict(verdict, "equals", mean, expected, mean - expected, low, high, margin, int(x.size), 1.0 - alpha,
+                   p)
 
 
 def against_every(verdicts, alpha: float = FAMILY_ALPHA) -> tuple[int, Verdict]:

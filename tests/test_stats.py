@@ -16,6 +16,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra import numpy as hnp
 from scipy import stats as _sst
+from statsmodels.stats.weightstats import ttost_paired
 
 from gimbal_lab import stats
 
@@ -499,56 +500,102 @@ def _by_hand(x):
     return x.mean(), T975_DF9 * x.std(ddof=1) / math.sqrt(x.size)
 
 
-BAND = (1.6, 4.7)
 SPREAD = np.array([-1.5, -1.0, -0.5, -0.25, 0.0, 0.0, 0.25, 0.5, 1.0, 1.5]) * 0.2  # sd 0.158, half-width 0.113
+NEES_DOF, NEES_MARGIN = 3.0, 0.6  # the occlusion study's NEES claim: mean 3, margin 20 % of 3
 
 
-def test_inside_band_holds_when_the_interval_lies_inside():
+def _tost_p(x, expected, margin):
+    """TOST p of "|mean − expected| < margin" by statsmodels' paired TOST against a constant
+    sample (an implementation apart from the one-sample t-tests mean_equals runs)."""
+    return ttost_paired(np.asarray(x, float), np.full(len(x), float(expected)), -margin, margin)[0]
+
+
+def test_mean_equals_holds_when_the_interval_holds_the_value_inside_the_margin():
     x = 3.0 + SPREAD
-    v = stats.inside_band(x, *BAND)
+    v = stats.mean_equals(x, NEES_DOF, NEES_MARGIN)
     mean, half = _by_hand(x)
-    assert (v.verdict, v.kind, v.n) == (stats.HOLDS, "inside", 10)
+    assert (v.verdict, v.kind, v.n, v.confidence) == (stats.HOLDS, "equals", 10, 0.95)
     assert (v.low, v.high) == pytest.approx((mean - half, mean + half), rel=1e-12)
-    assert v.mean_a == v.difference == pytest.approx(3.0) and math.isnan(v.mean_b) and math.isnan(v.delta)
-    # p: twice the larger one-sided p; the nearer end (4.7 is 1.7 away, 1.6 is 1.4 away) decides
-    p_low = _sst.ttest_1samp(x, 1.6, alternative="greater").pvalue
-    p_high = _sst.ttest_1samp(x, 4.7, alternative="less").pvalue
-    assert v.p_value == pytest.approx(2 * max(p_low, p_high), rel=1e-12) and v.p_value < 0.05
+    assert v.mean_a == pytest.approx(3.0) and v.mean_b == 3.0 and v.delta == NEES_MARGIN
+    assert v.difference == pytest.approx(0.0, abs=1e-15)
+    # the 90 % interval by hand lies inside (2.4, 3.6); p: the TOST p, from statsmodels
+    half90 = T95_DF9 * x.std(ddof=1) / math.sqrt(10)
+    assert 2.4 < mean - half90 and mean + half90 < 3.6
+    assert v.p_value == pytest.approx(_tost_p(x, 3.0, 0.6), rel=1e-9) and v.p_value < 0.05
 
 
-@pytest.mark.parametrize("centre, end", [(6.0, 4.7), (0.9, 1.6)])
-def test_inside_band_does_not_hold_when_the_interval_lies_beyond_an_end(centre, end):
+@pytest.mark.parametrize("centre", [4.5, 2.0, 3.3])
+def test_mean_equals_does_not_hold_when_the_interval_excludes_the_value(centre):
+    """4.5 and 2.0: a covariance off by ×1.5 either way; 3.3: inside the margin, yet the interval
+    (±0.113) excludes 3, and a mean detectably off 3 is not χ²(3)'s."""
     x = centre + SPREAD
-    v = stats.inside_band(x, *BAND)
+    v = stats.mean_equals(x, NEES_DOF, NEES_MARGIN)
     assert v.verdict == stats.DOES_NOT_HOLD
-    assert v.p_value == pytest.approx(_sst.ttest_1samp(x, end).pvalue, rel=1e-12) and v.p_value < 0.05
+    assert v.p_value == pytest.approx(_sst.ttest_1samp(x, 3.0).pvalue, rel=1e-12) and v.p_value < 0.05
 
 
-@pytest.mark.parametrize("centre", [4.7, 1.62, 1.5])
-def test_inside_band_inconclusive_when_the_interval_holds_an_end(centre):
-    x = centre + SPREAD  # the interval (±0.113) reaches over an end of the band
-    v = stats.inside_band(x, *BAND)
-    assert v.verdict == stats.INCONCLUSIVE
-    p_inside = 2 * max(_sst.ttest_1samp(x, 1.6, alternative="greater").pvalue,
-                       _sst.ttest_1samp(x, 4.7, alternative="less").pvalue)
-    p_beyond = min(_sst.ttest_1samp(x, 4.7).pvalue if x.mean() > 4.7 else 1.0,
-                   _sst.ttest_1samp(x, 1.6).pvalue if x.mean() < 1.6 else 1.0)
-    assert v.p_value == pytest.approx(min(p_inside, p_beyond, 1.0), rel=1e-12)
+@pytest.mark.parametrize("centre", [3.0, 3.4, 2.7])
+def test_mean_equals_inconclusive_when_the_interval_holds_the_value_but_reaches_past_the_margin(centre):
+    x = centre + 8.0 * SPREAD  # sd 1.26: 95 % half-width 0.90, 90 % half-width 0.73 > 0.6
+    v = stats.mean_equals(x, NEES_DOF, NEES_MARGIN)
+    assert v.verdict == stats.INCONCLUSIVE and v.low <= 3.0 <= v.high
+    p_differs = _sst.ttest_1samp(x, 3.0).pvalue
+    assert v.p_value == pytest.approx(min(p_differs, _tost_p(x, 3.0, 0.6)), rel=1e-9)
 
 
-def test_inside_band_boundary_and_bad_input():
-    # an interval that ends exactly on the band's end is not inside it
+def test_mean_equals_boundaries_and_bad_input():
     x = 3.0 + SPREAD
     _, low, high = stats.t_interval(x)
-    assert stats.inside_band(x, low, high + 1.0).verdict == stats.INCONCLUSIVE
-    assert stats.inside_band(x, low - 1.0, high).verdict == stats.INCONCLUSIVE
-    assert stats.inside_band(x, np.nextafter(low, -1.0), np.nextafter(high, 9.0)).verdict == stats.HOLDS
-    assert stats.inside_band([3.0, 3.0], *BAND).verdict == stats.HOLDS  # no spread: the mean alone
-    with pytest.raises(ValueError, match="band_low < band_high"):
-        stats.inside_band([3.0, 3.1], 4.7, 1.6)
-    with pytest.raises(ValueError, match="at least 2"):
-        stats.inside_band([3.0], *BAND)
-    with pytest.raises(ValueError, match="finite"):
-        stats.inside_band([3.0, math.nan], *BAND)
-    t = stats.holm(stats.verdict_table([dict(id="NEES", result=stats.inside_band(3.0 + SPREAD, *BAND))]))
+    # the value on an end of the 95 % interval is inside it; just beyond it is excluded
+    assert stats.mean_equals(x, low, 10.0).verdict == stats.HOLDS
+    assert stats.mean_equals(x, high, 10.0).verdict == stats.HOLDS
+    assert stats.mean_equals(x, np.nextafter(low, -1.0), 10.0).verdict == stats.DOES_NOT_HOLD
+    assert stats.mean_equals(x, np.nextafter(high, 9.0), 10.0).verdict == stats.DOES_NOT_HOLD
+    # a 90 % interval ending exactly on the margin is not inside it
+    _, low90, high90 = stats.t_interval(x, 0.90)
+    reach = max(high90 - 3.0, 3.0 - low90)  # the end farther from 3 (the mean is 3 to rounding)
+    assert stats.mean_equals(x, 3.0, reach).verdict == stats.INCONCLUSIVE
+    assert stats.mean_equals(x, 3.0, reach * (1.0 + 1e-9)).verdict == stats.HOLDS
+    assert stats.mean_equals([3.0, 3.0], 3.0, 0.6).verdict == stats.HOLDS  # no spread: the mean alone
+    assert stats.mean_equals([3.2, 3.2], 3.0, 0.6).verdict == stats.DOES_NOT_HOLD
+    for bad, match in (([3.0], "at least 2"), ([3.0, math.nan], "finite")):
+        with pytest.raises(ValueError, match=match):
+            stats.mean_equals(bad, 3.0, 0.6)
+    for margin in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="margin"):
+            stats.mean_equals(x, 3.0, margin)
+    with pytest.raises(ValueError, match="expected"):
+        stats.mean_equals(x, math.nan, 0.6)
+    with pytest.raises(ValueError, match="alpha"):
+        stats.mean_equals(x, 3.0, 0.6, alpha=0.5)
+    t = stats.holm(stats.verdict_table([dict(id="NEES", result=stats.mean_equals(x, 3.0, 0.6))]))
     assert t["verdict_holm"].tolist() == [stats.HOLDS]
+
+
+#: replicates and frames per replicate of the occlusion study at full size (two measured revolutions
+#: at 30 frames/s)
+MC_REPLICATES, MC_FRAMES = 10, 120
+
+
+def _verdict_rates(scale: float, blocks: int) -> dict:
+    """Share of each verdict over ``blocks`` blocks of MC_REPLICATES replicate means of NEES from a
+    filter whose true error covariance is ``scale`` × the one it claims: each frame's NEES is then
+    scale · χ²(3), and a replicate's mean of MC_FRAMES independent frames is scale · χ²(3·F)/F,
+    drawn from scipy.stats.chi2 (the distribution, not the lab's code)."""
+    rng = np.random.default_rng(20261207)
+    draws = scale * _sst.chi2.rvs(3 * MC_FRAMES, size=(blocks, MC_REPLICATES), random_state=rng) / MC_FRAMES
+    verdicts = [stats.mean_equals(block, NEES_DOF, NEES_MARGIN).verdict for block in draws]
+    return {v: verdicts.count(v) / blocks for v in stats.VERDICTS}
+
+
+def test_mean_equals_size_and_power_by_monte_carlo():
+    """The test's size at the study's 10 replicates: a consistent filter is judged inconsistent in
+    5 % of blocks (binomial σ 0.69 % over 1000 blocks; bound ±2.1 %, 3σ; measured 4.9 %). Its
+    power: a covariance off by ×1.5 either way (mean 4.5 or 2) is judged inconsistent in every
+    block of 100, and a consistent filter is judged consistent in every block it does not reject
+    (the 90 % interval's half-width, about 0.13 here, is far inside the margin)."""
+    consistent = _verdict_rates(1.0, 1000)
+    assert abs(consistent[stats.DOES_NOT_HOLD] - 0.05) < 0.021, consistent
+    assert consistent[stats.HOLDS] > 0.93, consistent
+    for scale in (1.5, 1.0 / 1.5):
+        assert _verdict_rates(scale, 100)[stats.DOES_NOT_HOLD] == 1.0, scale

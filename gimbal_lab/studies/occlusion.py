@@ -66,7 +66,7 @@ reappears is smaller than the paper loop's (which coasts on its last command, th
 **H2** the IMM beats CV and CA on the manoeuvring target (pointing error over the run, per
 occlusion); **H2c** ... and is at least as good as CV and CA on the circle (non-inferiority, margin
 δ with the 0.2° floor); **NEES** each filter's NEES is consistent with χ²(3), per filter and target
-(the 95 % interval of the replicates' means inside the band of an average of N χ²(3) values);
+(the replicates' mean NEES tested against 3, :func:`nees_consistency`);
 **BP1** "active (paper) < best passive" and **BP2** "active (best) < best passive" per occlusion
 and target: the paper loop's circle method and its exact cone fit against the passive camera's
 exact fit, distance error on the frames both localised (:func:`pipeline_table`). Every verdict of
@@ -97,7 +97,8 @@ __all__ = [
     "OcclusionStudy", "Study", "OCCLUSIONS", "TARGETS", "LOOPS", "FILTERS", "AFTER_FRAMES", "ANGLE_FLOOR_DEG",
     "PIPELINES", "BP_CLAIMS", "DOSE_MARGIN_M", "DOSE_STEP_S", "place_occluder", "hidden_time_s", "dose_time_s",
     "dose_hidden_s", "DosePlacement", "dose_placement", "place_dose_occluder", "dose_table", "occluders_for", "grid",
-    "episodes", "timeline_runs", "replicate_table", "pipeline_table", "summary_table", "dose_summary", "nees_band",
+    "episodes", "timeline_runs", "replicate_table", "pipeline_table", "summary_table", "dose_summary", "NEES_DOF",
+    "NEES_MARGIN", "nees_consistency",
     "check_hypotheses", "hypotheses_markdown", "make_report", "run_study", "example_view",
 ]
 
@@ -677,13 +678,36 @@ def _cell(replicates: pd.DataFrame, occlusion, target, loop, column) -> pd.Serie
 _FLOORS = {"deg": ANGLE_FLOOR_DEG, "m": stats.MIN_EFFECT_M}
 
 
-def nees_band(n: int, dof: int = 3) -> tuple[float, float]:
-    """The two-sided 95 % band of the average of ``n`` independent χ²(``dof``) values:
-    [χ²₀.₀₂₅(dof·n)/n, χ²₀.₉₇₅(dof·n)/n] (:func:`scipy.stats.chi2`; docs/design.md, Repairs)."""
-    from scipy.stats import chi2
+#: Expected NEES of a consistent filter's predicted position: its dimension (χ²(3) has mean 3).
+NEES_DOF = 3
+#: Margin within which "consistent" bounds the mean NEES: the equivalence margin of "Verdicts",
+#: 20 % of 3 (a covariance off by less than about ×1.2).
+NEES_MARGIN = stats.EQUIVALENCE_MARGIN * NEES_DOF
 
-    n = _number("n", n, low=1, integer=True)
-    return float(chi2.ppf(0.025, dof * n) / n), float(chi2.ppf(0.975, dof * n) / n)
+
+def nees_consistency(means) -> stats.Verdict:
+    """Verdict on "the filter's NEES is consistent with χ²(3)" from its replicates' mean NEES.
+
+    :func:`gimbal_lab.stats.mean_equals` against :data:`NEES_DOF` with margin :data:`NEES_MARGIN`:
+    **does not hold** when the 95 % interval of the mean excludes 3, **holds** when it contains 3
+    and the 90 % interval lies inside 3 ± 0.6, **inconclusive** otherwise (docs/design.md, "When
+    does a gimbal pay off?", Repairs, "Filter consistency as a verdict": the replicates are
+    independent, the frames inside one are not, so the test runs on the N replicate means).
+
+    Parameters
+    ----------
+    means : array_like, shape (n,)
+        Each replicate's mean NEES over its measured frames with a live track; non-finite values
+        (no live track) are left out, and fewer than two left give "inconclusive" with a NaN
+        interval and p-value.
+    """
+    x = np.asarray(means, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    if x.size < 2:  # no live track in the measured part of most replicates: no interval
+        mean = float(x.mean()) if x.size else math.nan
+        return stats.Verdict(stats.INCONCLUSIVE, "equals", mean, float(NEES_DOF), mean - NEES_DOF, math.nan,
+                             math.nan, NEES_MARGIN, int(x.size), 0.95, math.nan)
+    return stats.mean_equals(x, NEES_DOF, NEES_MARGIN)
 
 
 def _pooled_nees(replicates: pd.DataFrame, target: str, loop: str) -> pd.Series:
@@ -699,7 +723,8 @@ def check_hypotheses(replicates: pd.DataFrame, pipelines: pd.DataFrame | None = 
     p-values and Holm's family-level verdicts (every row one family).
 
     Units: "deg" (pointing errors), "m" (distance errors of BP1, BP2), "NEES" (the consistency
-    rows: kind "inside", the band in ``band_low``, ``band_high``). A pair with a missing value (no
+    rows, :func:`nees_consistency`: kind "equals", 3 ± the margin in ``band_low``, ``band_high``,
+    the 90 % interval in ``low90``, ``high90``). A pair with a missing value (no
     episode measured) drops out; fewer than two pairs is "inconclusive". Cells absent from
     ``replicates`` are skipped; BP1 and BP2 need ``pipelines`` (:func:`pipeline_table`).
     """
@@ -738,18 +763,12 @@ def check_hypotheses(replicates: pd.DataFrame, pipelines: pd.DataFrame | None = 
             for loop in FILTERS:
                 if not has_loop(t, loop):
                     continue
-                means = _pooled_nees(replicates, t, loop).dropna()
-                if len(means) < 2:  # no live track in the measured part of most replicates: no interval
-                    low, high = nees_band(max(len(means), 1))
-                    mean = float(means.mean()) if len(means) else math.nan
-                    result = stats.Verdict(stats.INCONCLUSIVE, "inside", mean, math.nan, mean, math.nan, math.nan,
-                                           math.nan, len(means), 0.95, math.nan)
-                else:
-                    low, high = nees_band(len(means))
-                    result = stats.inside_band(means.to_numpy(), low, high)
+                means = _pooled_nees(replicates, t, loop).dropna().to_numpy()
+                _, low90, high90 = stats.mean_interval(means, 0.90)
                 rows.append(dict(id="NEES", statement="the filter's NEES is consistent with χ²(3)",
-                                 condition=f"{loop}, {t}", a=loop, b="χ²(3) band", unit="NEES", band_low=low,
-                                 band_high=high, result=result))
+                                 condition=f"{loop}, {t}", a=loop, b="χ²(3)", unit="NEES",
+                                 band_low=NEES_DOF - NEES_MARGIN, band_high=NEES_DOF + NEES_MARGIN, low90=low90,
+                                 high90=high90, result=nees_consistency(means)))
     if pipelines is not None and len(pipelines):
         for o in OCCLUSIONS:
             for t in TARGETS:
@@ -772,15 +791,18 @@ def verdict_reason(row) -> str:
         from .lens_sweep import non_inferiority_reason
 
         return non_inferiority_reason(row, "have a value on both sides")
-    if kind == "inside":
+    if kind == "equals":
         if row.verdict == stats.HOLDS:
             return ""
         if not math.isfinite(row.low):
             return f"only {row.n} replicate(s) have measured frames with a live track: no interval"
-        where = (f"lies above the band's top {row.band_high:.2f}" if row.low > row.band_high else
-                 f"lies below the band's bottom {row.band_low:.2f}" if row.high < row.band_low else
-                 f"overlaps an end of the band [{row.band_low:.2f}, {row.band_high:.2f}]")
-        return f"the 95 % interval of the replicates' mean NEES, [{row.low:.2f}, {row.high:.2f}], {where}"
+        interval = f"the 95 % interval of the replicates' mean NEES, [{row.low:.2f}, {row.high:.2f}]"
+        if row.low > row.mean_b:
+            return f"{interval}, lies above {row.mean_b:g}: the filter claims a smaller covariance than its errors have"
+        if row.high < row.mean_b:
+            return f"{interval}, lies below {row.mean_b:g}: the filter claims a larger covariance than its errors have"
+        return (f"{interval}, holds {row.mean_b:g}, but the 90 % one reaches beyond {row.mean_b:g} ± {row.delta:.2f}: "
+                "too wide to call it consistent")
     if row.unit == "m":
         return _params.verdict_reason(row, "have frames both pipelines localised")
     return _params.verdict_reason(row, "have an occlusion episode on both sides")
@@ -822,10 +844,11 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         _params.verdict_rule(f"max({ANGLE_FLOOR_DEG:g}°, 10 % of the smaller mean) for pointing, max(1 mm, 10 %) "
                              "for distance", "H2c is non-inferiority (“IMM at least as good”): **holds** when the "
                              "upper one-sided 95 % bound of IMM − other lies below +δ, **does not hold** when the "
-                             "lower one lies above +δ; its interval is the 90 % one. NEES: **holds** when the 95 % "
-                             "interval of the replicates' mean NEES (every measured frame with a live track) lies "
-                             "inside the 95 % band of an average of N χ²(3) values, [χ²₀.₀₂₅(3N)/N, χ²₀.₉₇₅(3N)/N], "
-                             "**does not hold** when it lies outside; its “mean a” is the mean NEES. Every verdict "
+                             "lower one lies above +δ; its interval is the 90 % one. NEES (each replicate's mean NEES over "
+                             "every measured frame with a live track, tested across the independent replicates with "
+                             "Student's t): **does not hold** when the 95 % interval of their mean excludes 3, "
+                             f"**holds** when it contains 3 and the 90 % interval lies inside 3 ± {NEES_MARGIN:g}, "
+                             "inconclusive otherwise; its “mean a” is the mean NEES. Every verdict "
                              "carries the p-value of its deciding test; all verdicts are one family, and Holm's "
                              "step-down correction at 5 % gives the family-level verdict."),
         "",
@@ -839,10 +862,11 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
                                  {"p_value": "{:.2g}", "p_holm": "{:.2g}"})
     nees = verdicts[verdicts["id"] == "NEES"]
     if len(nees):
-        lines += ["", "## NEES against the χ²(3) band (mean over replicates, 95 % interval)", ""]
-        lines += _markdown_table(nees[["condition", "n", "mean_a", "low", "high", "band_low", "band_high", "verdict"]]
+        lines += ["", f"## NEES against 3 (mean over replicates, 95 % and 90 % intervals, margin 3 ± {NEES_MARGIN:g})",
+                  ""]
+        lines += _markdown_table(nees[["condition", "n", "mean_a", "low", "high", "low90", "high90", "verdict"]]
                                  .rename(columns={"mean_a": "mean NEES"}),
-                                 {c: "{:.2f}" for c in ("mean NEES", "low", "high", "band_low", "band_high")})
+                                 {c: "{:.2f}" for c in ("mean NEES", "low", "high", "low90", "high90")})
     if pipelines is not None and len(pipelines):
         lines += ["", "## The pipelines of BP1 and BP2: localisation rates and errors (means over replicates)", ""]
         means = pipelines.groupby(["occlusion", "target", "claim", "a", "b"], sort=False)[
@@ -905,7 +929,7 @@ def make_report(results, study: OcclusionStudy) -> _report.Report:
     Files: ``summary.csv``, ``replicates.parquet`` and ``.csv``, ``pipelines.csv``,
     ``verdicts.csv``, ``doses.csv`` (the manoeuvring target's doses as placed, :func:`dose_table`),
     ``claims.md``, ``study.json`` and ``figures/`` (the occlusion metrics per loop and occlusion,
-    example timelines, the forest plot of every verdict but the NEES bands, which claims.md
+    example timelines, the forest plot of every verdict but the NEES rows, which claims.md
     tables), PNG and SVG.
     """
     from .. import plotting
@@ -920,7 +944,7 @@ def make_report(results, study: OcclusionStudy) -> _report.Report:
         ("claims.md", hypotheses_markdown(verdicts, summary, study, pipelines, replicates)),
     ], [("occlusion_metrics", lambda: plotting.occlusion.plot_occlusion_metrics(summary)),
         ("occlusion_timelines", lambda: plotting.occlusion.plot_occlusion_timelines(timeline_runs(results)))],
-        verdicts, forest_rows=verdicts[verdicts["kind"] != "inside"])
+        verdicts, forest_rows=verdicts[verdicts["kind"] != "equals"])
 
 
 def run_study(study: OcclusionStudy, out, *, store=None, executor=None, jobs=None, progress=True,
