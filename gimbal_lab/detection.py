@@ -69,6 +69,7 @@ __all__ = [
     "sphere_coverage",
     "SphereCoverage",
     "STREAK_MIN_PX",
+    "SMOOTH_BACKGROUND",
     "locate_sphere_circle_undistorted",
     "circle_method_estimate",
     "sphere_silhouette_px",
@@ -1244,6 +1245,13 @@ def _sphere_from_cone(cone: np.ndarray | None, radius_m: float) -> np.ndarray | 
 #: at 3 m on a 2 px streak (measured, same sphere).
 STREAK_MIN_PX = 2.0
 
+#: Above this :attr:`SphereCoverage.background_rms` the background is not the smooth one the
+#: coverage needs and :func:`locate_sphere_streak` returns the cone fit. Measured on the lab's
+#: blurred frames: 0.000 with the sky behind (no noise; sensor noise of std 2 grey levels gives
+#: 0.0125 on grass-coloured ground, tested), 0.046–0.073 on the checkered grass and 0.27–0.35 where
+#: the horizon crosses the region, whose coverage then errs by 0.1–1.9 m and 1–6 m.
+SMOOTH_BACKGROUND = 0.03
+
 #: Pixels of lower coverage are left out of the second moments of :func:`sphere_coverage` (not out
 #: of its solid angle): a background pixel's noise in α (about 0.04 for sensor noise of std 2 grey
 #: levels) is weighted there by its squared distance, ≈ σ·√N·ρ²/A px² from N pixels at ρ px around
@@ -1276,6 +1284,10 @@ class SphereCoverage:
         coverage's second moments, up to 10 % short), pixels.
     direction : ndarray, shape (2,)
         Unit vector along the streak in that turned camera (its sign is arbitrary).
+    background_rms : float
+        RMS distance of the ring's colours from the background plane, as a fraction of the
+        target's contrast with it (|ĉ·a − b| over the wholly covered pixels): how far the
+        background departs from the smooth one the coverage assumes.
     """
 
     ray: np.ndarray
@@ -1283,6 +1295,7 @@ class SphereCoverage:
     half_angle_rad: float
     streak_px: float
     direction: np.ndarray
+    background_rms: float
 
 
 def _coverage(colours: np.ndarray, inside: np.ndarray, behind: np.ndarray) -> np.ndarray:
@@ -1431,6 +1444,9 @@ def sphere_coverage(
             return None
         inside = pure.mean(axis=0)
     alpha = np.where(region, _coverage(window, inside, behind), 0.0)
+    pure = _coverage(colours, inside, backgrounds) >= _PURE_COVERAGE
+    contrast = float(np.mean(np.linalg.norm(colours[pure] - backgrounds[pure], axis=1)))
+    roughness = float(np.sqrt(np.mean(np.sum((window[ring] - behind[ring]) ** 2, axis=1))))
     try:
         rays, omega = _window_rays(box, intrinsics, distortion)
     except UndistortionError:
@@ -1463,6 +1479,7 @@ def sphere_coverage(
         half_angle_rad=math.acos(1.0 - solid_angle / (2 * math.pi)),
         streak_px=math.sqrt(12.0 * max(eigenvalues[1] - eigenvalues[0], 0.0)),
         direction=eigenvectors[:, 1],
+        background_rms=roughness / contrast,
     )
 
 
@@ -1505,13 +1522,15 @@ def locate_sphere_streak(
     The lab's addition (docs/design.md, "The paper's methods as equations"); the derivation and
     the assumptions are :func:`sphere_coverage`'s. Falls back to :func:`locate_sphere_ellipse`
     on the same detection (the exact cone fit of its outline) when the coverage cannot be read
-    (the blob touches the border, a ray cannot be undistorted) and when the streak is
-    shorter than :data:`STREAK_MIN_PX`: on a sharp frame the outline's edge is the better
-    measure (no background colour to estimate).
+    (the blob touches the border, a ray cannot be undistorted), when the background around the
+    blob is not smooth (:attr:`SphereCoverage.background_rms` above :data:`SMOOTH_BACKGROUND`: a
+    textured ground or the horizon is read as coverage), and when the streak is shorter than
+    :data:`STREAK_MIN_PX`: on a sharp frame the outline's edge is the better measure (no
+    background colour to estimate).
     """
     radius_m = _check_radius(radius_m)
     coverage = sphere_coverage(rgb, detection, intrinsics, distortion, mixing)
-    if coverage is None or coverage.streak_px < STREAK_MIN_PX:
+    if coverage is None or coverage.streak_px < STREAK_MIN_PX or coverage.background_rms > SMOOTH_BACKGROUND:
         return locate_sphere_ellipse(detection, intrinsics, radius_m, distortion=distortion)
     return (radius_m / math.sin(coverage.half_angle_rad)) * coverage.ray
 

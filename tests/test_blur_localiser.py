@@ -24,6 +24,7 @@ import pytest
 
 from gimbal_lab.camera import BrownConrady, Intrinsics, undistort
 from gimbal_lab.detection import (
+    SMOOTH_BACKGROUND,
     STREAK_MIN_PX,
     SphereDetector,
     locate_sphere_ellipse,
@@ -43,10 +44,12 @@ NOISY_TOL_M = 0.025
 STREAK_FLOOR_PX = 1.6  # what the moments read on a sharp sphere (1.5 px at 15° off the axis)
 
 
-def swept_sphere(start_m, end_m, radius_m=RADIUS_M, lens=None, n_time=48, n_sub=4, noise_std=0.0, seed=0):
+def swept_sphere(start_m, end_m, radius_m=RADIUS_M, lens=None, n_time=48, n_sub=4, noise_std=0.0, seed=0,
+                 background=None):
     """RGB uint8 frame of a sphere moving uniformly from ``start_m`` to ``end_m`` (camera frame, m)
     over the exposure: the exact silhouette at ``n_time`` instants, ``n_sub`` × ``n_sub`` samples a
-    pixel, the coverage mixing target and background in linear light, then sRGB-encoded."""
+    pixel, the coverage mixing target and background (linear RGB, (H, W, 3); default uniform
+    grass) in linear light, then sRGB-encoded."""
     start_m, end_m = np.asarray(start_m, float), np.asarray(end_m, float)
     # the pixels the sphere can reach: its silhouettes at both ends through the pinhole, with room
     # for a lens's displacement
@@ -76,8 +79,8 @@ def swept_sphere(start_m, end_m, radius_m=RADIUS_M, lens=None, n_time=48, n_sub=
         coverage += rays @ (centre / distance) >= math.sqrt(1 - (radius_m / distance) ** 2)
     coverage = (coverage / n_time).reshape(v1 - v0, n_sub, u1 - u0, n_sub).mean(axis=(1, 3))
     linear = np.empty((CAM.height, CAM.width, 3))
-    linear[:] = BACKGROUND
-    linear[v0:v1, u0:u1] = coverage[..., None] * TARGET + (1 - coverage[..., None]) * np.array(BACKGROUND)
+    linear[:] = BACKGROUND if background is None else background
+    linear[v0:v1, u0:u1] = coverage[..., None] * TARGET + (1 - coverage[..., None]) * linear[v0:v1, u0:u1]
     encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055) * 255
     if noise_std:
         encoded = encoded + np.random.default_rng(seed).normal(0.0, noise_std, encoded.shape)
@@ -182,6 +185,30 @@ def test_a_blob_on_the_border_falls_back_to_the_cone_fit_and_one_near_it_is_read
     assert not detection.touches_border and detection.outline_px[:, 0].min() < 1.25 * detection.radius_px
     centre = locate_sphere_streak(near, detection, CAM, RADIUS_M)
     assert np.linalg.norm(centre - middle) < CENTRE_TOL_M
+
+
+@pytest.mark.parametrize("ground", ["stripes", "horizon"])
+def test_a_background_that_is_not_smooth_falls_back_to_the_cone_fit(ground):
+    """Grass in stripes 20 px wide, 20 % brighter and darker (the lab's ground), or a sky above
+    grass through the blob: either is read as coverage, so the cone fit is returned."""
+    rows = np.arange(CAM.height)[:, None, None]
+    if ground == "stripes":
+        background = np.array(BACKGROUND) * (1 + 0.2 * np.sign(np.sin(2 * np.pi * (rows + 0.5) / 40)))
+    else:
+        background = np.where(rows < CAM.cy, np.array([0.26, 0.48, 0.83]), np.array(BACKGROUND))
+    background = np.broadcast_to(background, (CAM.height, CAM.width, 3))
+    start, middle, end = motion(10, 30, 0)
+    image = swept_sphere(start, end, background=background)
+    detection = detect(image)
+    assert sphere_coverage(image, detection, CAM).background_rms > SMOOTH_BACKGROUND
+    np.testing.assert_array_equal(locate_sphere_streak(image, detection, CAM, RADIUS_M),
+                                  locate_sphere_ellipse(detection, CAM, RADIUS_M))
+
+
+def test_sensor_noise_on_a_uniform_ground_is_smooth():
+    start, middle, end = motion(10, 60, 15)
+    image = swept_sphere(start, end, noise_std=2.0, seed=5)
+    assert sphere_coverage(image, detect(image), CAM).background_rms < 0.5 * SMOOTH_BACKGROUND
 
 
 def test_bad_input_is_named():
