@@ -492,9 +492,11 @@ class ResultsStore:
     its owner is gone (same machine: the pid no longer runs or is another process; the machine
     restarted), or the claim was not refreshed for :data:`CLAIM_STALE_S` (owners refresh their
     claims every :data:`CLAIM_REFRESH_S` from a thread), which covers an owner on another machine.
-    A claim that is not one the lab writes (not JSON, fields missing or of the wrong type), or that
-    names a live process of this machine running another executable than the one it records
-    (not a gimbal-lab run), is taken over at once with a warning naming it.
+    While it holds claims, a store object holds an exclusive ``flock`` on a lock file of its own
+    (``runs/.owner~HOST~PID~RANDOM~CHECK.lock``) that its claims name. A claim that is not one the
+    lab writes (not JSON, fields missing or of the wrong type), or that names a live process of
+    this machine which does not hold the lock the claim names (not a gimbal-lab run, whatever its
+    pid), is taken over at once with a warning naming it. Lock files nobody holds are removed.
     A claim file rather than an ``fcntl`` lock per run because a sweep on a pool holds a claim on
     every run it has queued (hundreds or thousands of them: one open file each would pass the usual
     limit of 1024) and a claim stays visible on disk. A sweep in one process claims one run at a
@@ -526,6 +528,7 @@ class ResultsStore:
         self._claims: dict[str, tuple[Path, str]] = {}  # key -> (claim file, its token)
         self._claims_guard = threading.Lock()
         self._heartbeat: threading.Thread | None = None
+        self._owner: tuple[int, str] | None = None  # (fd, name) of the lock this object holds while it claims
         self._open()
 
     @classmethod
@@ -540,7 +543,7 @@ class ResultsStore:
 
     def __getstate__(self):
         state = self.__dict__.copy()  # claims belong to the process holding them
-        state.update(_claims={}, _claims_guard=None, _heartbeat=None)
+        state.update(_claims={}, _claims_guard=None, _heartbeat=None, _owner=None)
         return state
 
     def __setstate__(self, state):
@@ -589,6 +592,10 @@ class ResultsStore:
                         log.info("results store: removed %s, left by a writer that is gone", entry.path)
                 elif _is_claim_name(name):
                     stale_claims.append(Path(entry.path))
+                elif name.startswith(".owner~") and name.endswith(".lock") and _lock_is_free(Path(entry.path)):
+                    parts = name[len(".owner~"):-len(".lock")]
+                    if _is_own_temporary(parts, "~") is not None:
+                        os.unlink(entry.path)
             except OSError:
                 continue  # gone meanwhile, or a store we may only read
         if stale_claims:
@@ -774,8 +781,12 @@ class ResultsStore:
                 return True
         path = self._claim_path(key)
         token = secrets.token_hex(8)
+        try:
+            lock = self._owner_lock()
+        except OSError as exc:
+            raise StoreError(self.runs, exc) from exc
         record = json.dumps({"host": _HOST, "boot": _BOOT_ID, "pid": os.getpid(), "start": _start_ticks(os.getpid()),
-                             "exe": _executable(os.getpid()), "token": token}).encode()
+                             "exe": _executable(os.getpid()), "lock": lock, "token": token}).encode()
         for attempt in range(2):
             try:
                 created = self._create_claim(path, record)
@@ -783,6 +794,7 @@ class ResultsStore:
                 raise StoreError(path, exc) from exc
             if not created:
                 if attempt == 1 or not self._take_over_if_stale(path):
+                    self._drop_owner_lock()  # nothing claimed: no lock held for nothing
                     return False
                 continue
             with self._claims_guard:
@@ -793,6 +805,41 @@ class ResultsStore:
                     self._heartbeat.start()
             return True
         return False
+
+    def _owner_lock(self) -> str:
+        """The name of the lock file this object holds (an exclusive ``flock``) while it claims runs,
+        made the first time: ``runs/.owner~HOST~PID~RANDOM~CHECK.lock``. Locked under a temporary
+        name, then renamed, so no cleaner ever finds it unlocked."""
+        with self._claims_guard:
+            if self._owner is not None:
+                return self._owner[1]
+            import fcntl
+
+            name = f".owner~{_unique_tag('~')}.lock"
+            tmp = _tmp_name(self.runs / "owner.lock")
+            fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+            try:
+                os.fchmod(fd, 0o644)  # others on the store must be able to open it to test the lock
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                os.rename(tmp, self.runs / name)
+            except BaseException:
+                os.close(fd)
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+                raise
+            self._owner = (fd, name)
+            return name
+
+    def _drop_owner_lock(self) -> None:
+        """Remove and unlock this object's lock file once it holds no claim."""
+        with self._claims_guard:
+            if self._owner is None or self._claims:
+                return
+            fd, name = self._owner
+            self._owner = None
+        with contextlib.suppress(OSError):
+            os.unlink(self.runs / name)
+        os.close(fd)
 
     def _create_claim(self, path: Path, record: bytes) -> bool:
         """Make the claim file ``path`` holding ``record``, whole, unless it exists (then False):
@@ -851,6 +898,7 @@ class ResultsStore:
             held = self._claims.pop(self.key(config), None)
         if held is not None:
             self._release(*held)
+        self._drop_owner_lock()
 
     def release_all(self) -> None:
         """Give up every claim this object holds."""
@@ -858,6 +906,7 @@ class ResultsStore:
             held, self._claims = list(self._claims.values()), {}
         for path, token in held:
             self._release(path, token)
+        self._drop_owner_lock()
 
     def _release(self, path: Path, token: str) -> None:
         try:
@@ -944,10 +993,33 @@ def _claim_verdict(path: Path) -> tuple[bool, str | None]:
         return True, None  # this machine restarted since
     if not _alive(owner["pid"], owner.get("start")):
         return True, None
-    recorded, running = owner.get("exe"), _executable(owner["pid"])
-    if isinstance(recorded, str) and running is not None and running != recorded:
-        return True, f"names process {owner['pid']} ({running}), which is not a gimbal-lab run"
-    return False, None
+    lock = owner.get("lock")
+    if isinstance(lock, str) and lock.startswith(".owner~") and "/" not in lock and not _lock_is_free(path.parent / lock):
+        return False, None  # its owner holds its lock: a gimbal-lab run, alive
+    running = _executable(owner["pid"]) or "its executable cannot be read"
+    return True, f"names process {owner['pid']} ({running}), which is not a gimbal-lab run (it holds no store lock)"
+
+
+def _lock_is_free(path: Path) -> bool:
+    """Can an owner's lock file be locked (nobody holds it), or is it gone? False while a process
+    holds it (or where the file system cannot lock: then it is taken as held)."""
+    import fcntl
+
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    return True
 
 
 def _claim_is_stale(path: Path) -> bool:

@@ -563,21 +563,30 @@ def test_claims_are_exclusive_and_stale_ones_are_taken_over(tmp_path):
     owner = json.loads(claim.read_text())
     assert owner["pid"] == os.getpid() and owner["host"] == runner._HOST
     assert not b.claim(c)  # a live holder (another object of this process counts as another holder)
+    assert len(list(a.runs.glob(".owner~*.lock"))) == 1  # a's lock, which its claim names
+    assert not runner._lock_is_free(a.runs / owner["lock"])
     a.release(c)
     assert not claim.exists() and b.claim(c)
     b.release_all()
-    assert not claim.exists()
+    assert not claim.exists() and not list(a.runs.glob(".owner~*"))  # no claim held: no lock left
 
-    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # another gimbal-lab run
+    # another gimbal-lab run: a live process holding its store lock (as ResultsStore._owner_lock makes it)
+    live = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import fcntl, os, sys, time
+        fd = os.open({str(a.runs / ".owner~live.lock")!r}, os.O_RDWR | os.O_CREAT)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        print("locked", flush=True)
+        time.sleep(60)
+    """)], stdout=subprocess.PIPE, text=True)
     try:
-        exe = runner._executable(live.pid)
-        assert exe is not None and exe == runner._executable(os.getpid())
+        assert live.stdout.readline() == "locked\n"
+        lock = ".owner~live.lock"
         cases = {
-            "a live process": (_claim_record(pid=live.pid, exe=exe), 0, False),
-            "a live process of an older version (no exe)": (_claim_record(pid=live.pid), 0, False),
-            "a dead process": (_claim_record(pid=_dead_pid(), start=None), 0, True),
-            "a reused pid": (_claim_record(pid=live.pid, start=(runner._start_ticks(live.pid) or 0) + 1), 0, True),
-            "this machine before a restart": (_claim_record(pid=live.pid, boot="another boot"), 0, True),
+            "a live process": (_claim_record(pid=live.pid, lock=lock), 0, False),
+            "a dead process": (_claim_record(pid=_dead_pid(), start=None, lock=lock), 0, True),
+            "a reused pid": (_claim_record(pid=live.pid, lock=lock, start=(runner._start_ticks(live.pid) or 0) + 1), 0,
+                             True),
+            "this machine before a restart": (_claim_record(pid=live.pid, lock=lock, boot="another boot"), 0, True),
             "another machine, refreshed": (_claim_record(host="elsewhere"), 0, False),
             "another machine, not refreshed": (_claim_record(host="elsewhere"), runner.CLAIM_STALE_S + 60, True),
             "an owner that died writing it": ({}, runner.CLAIM_STALE_S + 60, True),

@@ -208,24 +208,85 @@ def test_a_claim_file_that_is_not_the_labs_is_taken_over_at_once_with_a_warning(
     store.release(c)
 
 
-def test_a_claim_naming_a_live_process_that_is_not_a_gimbal_lab_run_is_taken_over(tmp_path):
+LOCKER = """
+import fcntl, os, sys, time
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)
+if sys.argv[2] == "hold":
+    fcntl.flock(fd, fcntl.LOCK_EX)
+print("ready", flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.parametrize("other", ["sleep", "python holding no lock", "python whose lock is gone", "pid 1"])
+def test_a_claim_naming_a_live_process_that_is_not_a_gimbal_lab_run_is_taken_over(tmp_path, other):
+    """Alive, on this machine, its start time right, but not holding the store lock its claim
+    names: whatever the process (even a Python one, or one whose executable cannot be read), the
+    claim is taken over at once."""
     c = cfg(34)
     store = ResultsStore(tmp_path / "store")
     claim = store.runs / f"{store.key(c)}.claim"
-    other = subprocess.Popen(["sleep", "60"])  # alive, this machine, its start time right: not the lab
-    try:
+    lock = ".owner~not-held.lock"
+    proc = None
+    if other == "sleep":
+        proc = subprocess.Popen(["sleep", "60"])
         deadline = time.monotonic() + 5
-        while runner._executable(other.pid) in (None, runner._executable(os.getpid())):  # until exec'd
+        while runner._executable(proc.pid) in (None, runner._executable(os.getpid())):  # until exec'd
             assert time.monotonic() < deadline
             time.sleep(0.01)
-        claim.write_text(json.dumps(_record(pid=other.pid, start=runner._start_ticks(other.pid))))
-        with pytest.warns(RuntimeWarning, match=f"{claim} names process {other.pid} \\(.*sleep.*\\), which is not a "
-                                                "gimbal-lab run; taken over"):
+    elif other != "pid 1":
+        proc = subprocess.Popen([sys.executable, "-c", LOCKER, str(store.runs / lock), "no"], stdout=subprocess.PIPE,
+                                text=True)
+        assert proc.stdout.readline() == "ready\n"
+        if other == "python whose lock is gone":
+            (store.runs / lock).unlink()
+    pid = 1 if proc is None else proc.pid
+    try:
+        claim.write_text(json.dumps(_record(pid=pid, start=runner._start_ticks(pid), lock=lock)))
+        with pytest.warns(RuntimeWarning, match=f"{claim} names process {pid} \\(.*\\), which is not a gimbal-lab run "
+                                                "\\(it holds no store lock\\); taken over"):
             assert store.claim(c)
     finally:
-        other.kill()
-        other.wait()
+        if proc is not None:
+            proc.kill()
+            proc.wait()
     store.release(c)
+
+
+def test_a_claim_whose_owner_holds_its_lock_is_respected(tmp_path):
+    c = cfg(34)
+    store = ResultsStore(tmp_path / "store")
+    claim = store.runs / f"{store.key(c)}.claim"
+    lock = ".owner~held.lock"
+    proc = subprocess.Popen([sys.executable, "-c", LOCKER, str(store.runs / lock), "hold"], stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout.readline() == "ready\n"
+        claim.write_text(json.dumps(_record(pid=proc.pid, start=runner._start_ticks(proc.pid), lock=lock)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert not store.claim(c)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert store.claim(c)  # once its owner is gone
+    store.release(c)
+
+
+def test_lock_files_nobody_holds_are_removed_when_a_store_is_opened(tmp_path):
+    from gimbal_lab import outputs
+
+    store = ResultsStore(tmp_path / "store")
+    core = f"{runner._HOST}~123~0a1b"
+    ours = store.runs / f".owner~{core}~{outputs._check_tag(core)}.lock"  # a killed owner's, unlocked
+    lookalike = store.runs / f".owner~{core}~ffffff.lock"
+    for path in (ours, lookalike):
+        path.write_text("")
+    assert store.claim(cfg(37))  # this object's own lock, held
+    ResultsStore(store.root)
+    assert not ours.exists() and lookalike.exists()
+    assert len(list(store.runs.glob(".owner~*.lock"))) == 2  # the lookalike and the held one
+    store.release_all()
 
 
 def test_a_sweep_meeting_a_garbage_claim_runs_at_once(tmp_path, monkeypatch):
