@@ -201,10 +201,10 @@ def test_track_gimbal_signs_with_its_key_file_and_a_wrong_key_is_refused(tmp_pat
 
 
 def test_the_lab_device_with_a_key_is_steered_with_it_and_refuses_a_wrongly_keyed_driver(tmp_path):
-    """``gimbal-lab gimbal-device --signing-key-file`` in its own process. A driver with another key
-    finds nothing (the device does not take it as a client), and its attitude commands, sent to the
-    device's address regardless, are not executed: the device stays at home as a driver with the
-    right key sees it, until that driver sends the same command, which turns it."""
+    """``gimbal-lab gimbal-device --signing-key-file`` in its own process. A driver with its key
+    finds it and turns it to yaw +0.5 rad. A driver with another key finds nothing (the device
+    does not take it as a client), and its attitude commands to yaw −0.5 rad, sent to the device's
+    address regardless, are not executed: the keyed driver still sees yaw +0.5 rad."""
     import subprocess
     import sys
 
@@ -221,21 +221,22 @@ def test_the_lab_device_with_a_key_is_steered_with_it_and_refuses_a_wrongly_keye
         with MavlinkGimbal(address, request_info=True, discover_timeout_s=LIVENESS_S, timeout_s=5.0,
                            signing_key_file=key_file(tmp_path, KEY)) as gimbal:
             assert gimbal.info is not None and gimbal.info.component_id == mavlink.MAV_COMP_ID_GIMBAL
-            with pytest.raises(GimbalNotFound, match="no gimbal HEARTBEAT"):
-                MavlinkGimbal(address, request_info=False, discover_timeout_s=1.0,
-                              signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key"))
-            with MavlinkGimbal(address, target=gimbal.target, request_info=False, timeout_s=LIVENESS_S,
-                               signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key")) as stranger:
-                for _ in range(10):
-                    stranger.send_attitude(yaw_rad, 0.0)
-                    time.sleep(0.05)
-            time.sleep(0.5)  # the device turns 0.5 rad in well under 0.5 s when it obeys (20 /s gain)
-            report = gimbal.wait_report(LIVENESS_S)
-            assert abs(report.euler_rad[0]) < 1e-3, report.euler_rad
             gimbal.send_attitude(yaw_rad, 0.0)
             deadline = time.monotonic() + LIVENESS_S
-            while abs(gimbal.wait_report(LIVENESS_S).euler_rad[0] - yaw_rad) > 1e-2:
+            while abs(gimbal.wait_report(LIVENESS_S).euler_rad[0] - yaw_rad) > 1e-3:
                 assert time.monotonic() < deadline
+            with pytest.raises(GimbalNotFound, match="no gimbal HEARTBEAT"):
+                MavlinkGimbal(address, request_info=False, discover_timeout_s=1.0, component_id=192,
+                              signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key"))
+            # another sender (component 192: two senders with one identity would be one signing stream)
+            with MavlinkGimbal(address, target=gimbal.target, request_info=False, timeout_s=LIVENESS_S,
+                               component_id=192, signing_key_file=key_file(tmp_path, OTHER_KEY, "other.key")) as stranger:
+                for _ in range(10):
+                    stranger.send_attitude(-yaw_rad, 0.0)
+                    time.sleep(0.05)
+            time.sleep(0.5)  # the device turns 1 rad in well under 0.5 s when it obeys (20 /s gain)
+            report = gimbal.wait_report(LIVENESS_S)
+            assert abs(report.euler_rad[0] - yaw_rad) < 1e-3, report.euler_rad
             assert gimbal.refused_packets == 0
         assert process.poll() is None  # the device is still up
     finally:

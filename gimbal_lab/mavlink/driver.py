@@ -326,7 +326,7 @@ class MavlinkGimbal:
         """Packets refused for their signature (unsigned or wrongly signed; 0 without a key)."""
         return refused_count(self._mav) if self.signed else 0
 
-    def _refusals(self) -> str:
+    def refusals_note(self) -> str:
         """A clause on refused packets for a not-found message ("" when none were refused)."""
         count = self.refused_packets
         return (f"; {count} packets were refused for their signature (is the device's signing key this one, and "
@@ -491,7 +491,7 @@ class MavlinkGimbal:
         if found is None:
             raise GimbalNotFound(f"no gimbal HEARTBEAT (MAV_TYPE_GIMBAL or component {GIMBAL_COMPONENT_IDS[0]}, "
                                  f"{GIMBAL_COMPONENT_IDS[1]}..{GIMBAL_COMPONENT_IDS[-1]}) on {self.address} "
-                                 f"within {timeout_s:g} s{self._refusals()}")
+                                 f"within {timeout_s:g} s{self.refusals_note()}")
         with self._cond:
             self._target = found
             self._last_heard_s = time.monotonic()
@@ -535,7 +535,7 @@ class MavlinkGimbal:
                     yaw_limits_rad=(float(msg.yaw_min), float(msg.yaw_max)))
                 return self.info
         raise GimbalNotFound(f"gimbal {system}/{component} on {self.address} sent no GIMBAL_DEVICE_INFORMATION "
-                             f"after {attempts} requests of {timeout_s:g} s each{self._refusals()}")
+                             f"after {attempts} requests of {timeout_s:g} s each{self.refusals_note()}")
 
     # ------------------------------------------------------------------ commands
     def send_quaternion(self, q_wxyz, frame: str = "vehicle", angular_velocity_rad_s=None) -> None:
@@ -668,7 +668,7 @@ class MavlinkGimbal:
         if found is None:
             raise GimbalNotFound(f"no gimbal manager for gimbal {system}/{component} on {self.address} (no "
                                  f"GIMBAL_MANAGER_STATUS or _INFORMATION with gimbal_device_id {component}) within "
-                                 f"{timeout_s:g} s{self._refusals()}")
+                                 f"{timeout_s:g} s{self.refusals_note()}")
         with self._cond:
             self.manager = found
         return found

@@ -164,7 +164,7 @@ class GimbalSteer:
             except TimeoutError:
                 raise GimbalNotFound(f"gimbal {system}/{component} on {self.driver.address} sent no attitude status "
                                      f"(GIMBAL_DEVICE_ATTITUDE_STATUS) within {discover_timeout_s:g} s: it cannot be "
-                                     f"steered without one{self.driver._refusals()}") from None
+                                     f"steered without one{self.driver.refusals_note()}") from None
             if self.via_manager:
                 manager = self.driver.find_manager(discover_timeout_s)
                 self.driver.take_manager_control()
