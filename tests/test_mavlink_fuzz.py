@@ -26,7 +26,8 @@ from gimbal_lab.mavlink.protocol import STEP_COMMAND
 LIVENESS_S = 30.0  # generous bound for an answer that must merely arrive
 SYSTEM, COMPONENT = 1, mavlink.MAV_COMP_ID_GIMBAL
 #: Messages the device reads.
-READ = ("GIMBAL_DEVICE_SET_ATTITUDE", "COMMAND_LONG", "COMMAND_INT")
+READ = ("GIMBAL_DEVICE_SET_ATTITUDE", "COMMAND_LONG", "COMMAND_INT", "GIMBAL_MANAGER_SET_ATTITUDE",
+        "GIMBAL_MANAGER_SET_PITCHYAW")
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 3.4e38, -3.4e38, 1e-45, -0.0, 1e9)
 INT_RANGES = {"uint8_t": (0, 255), "int8_t": (-128, 127), "uint16_t": (0, 65535), "int16_t": (-32768, 32767),
               "uint32_t": (0, 2**32 - 1), "int32_t": (-2**31, 2**31 - 1), "uint64_t": (0, 2**64 - 1),
@@ -131,7 +132,11 @@ def hostile_message(name, rng, *, addressed=True):
     if addressed and hasattr(msg, "target_system"):
         msg.target_system, msg.target_component = SYSTEM, int(rng.choice([0, COMPONENT]))
     if name in ("COMMAND_LONG", "COMMAND_INT") and rng.random() < 0.5:  # the commands the device knows
-        msg.command = int(rng.choice([mavlink.MAV_CMD_REQUEST_MESSAGE, STEP_COMMAND]))
+        msg.command = int(rng.choice([mavlink.MAV_CMD_REQUEST_MESSAGE, STEP_COMMAND,
+                                      mavlink.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+                                      mavlink.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE]))
+    if hasattr(msg, "gimbal_device_id") and rng.random() < 0.7:  # mostly this gimbal (or all)
+        msg.gimbal_device_id = int(rng.choice([0, COMPONENT]))
     return msg
 
 

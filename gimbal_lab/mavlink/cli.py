@@ -34,7 +34,9 @@ def add_parsers(sub) -> None:
         "gimbal-device", help="run the lab's simulated gimbal as a MAVLink gimbal device (Gimbal Protocol v2)",
         description="Run the lab's gimbal (yaw-roll-pitch kinematics, axis dynamics and rate loops on a drone "
                     "body) as a MAVLink 2 gimbal device: HEARTBEAT at 1 Hz, GIMBAL_DEVICE_INFORMATION on "
-                    "request, GIMBAL_DEVICE_SET_ATTITUDE in (rates or attitude), GIMBAL_DEVICE_ATTITUDE_STATUS out. "
+                    "request, GIMBAL_DEVICE_SET_ATTITUDE in (rates or attitude), GIMBAL_DEVICE_ATTITUDE_STATUS out, "
+                    "and a gimbal manager on the same component (GIMBAL_MANAGER_INFORMATION, GIMBAL_MANAGER_STATUS, "
+                    "MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE and _PITCHYAW, GIMBAL_MANAGER_SET_ATTITUDE and _PITCHYAW). "
                     "Real time by default; --lockstep advances only on the driver's step command "
                     "(docs/design.md, \"MAVLink gimbal\").",
         epilog="Example: gimbal-lab gimbal-device --listen udpin:127.0.0.1:14555 --latency-s 0.02 --loss 0.05")
@@ -65,6 +67,8 @@ def add_parsers(sub) -> None:
                                                                    "(the lab's yaw; default 0)")
     p.add_argument("--duration-s", type=float, default=3600.0,
                    help="simulated time the device can run, s (default 3600)")
+    p.add_argument("--no-manager", action="store_true",
+                   help="no gimbal manager on the device's component (a bare gimbal device behind an autopilot)")
     p.add_argument("--signing-key-file", default=None, metavar="FILE",
                    help="MAVLink 2 signing key (32 raw bytes or 64 hex characters): sign what the device sends and "
                         "refuse unsigned or wrongly signed packets (counted); default: no signing")
@@ -140,12 +144,13 @@ def _gimbal_device_command(args, parser) -> int:
             link, simulated_gimbal(body=body, duration_s=args.duration_s), effects, lockstep=args.lockstep,
             system_id=args.system_id, component_id=args.component_id,
             max_rate_rad_s=math.radians(args.max_rate_deg_s) if args.max_rate_deg_s else DEFAULT_MAX_RATE_RAD_S,
-            signing_key=key)
+            signing_key=key, manager=not args.no_manager)
         print(f"gimbal-device: system {args.system_id} component {args.component_id} on {args.listen}, "
               f"{'lock-step' if args.lockstep else 'real time'}, status {args.status_rate_hz:g} Hz, latency "
               f"{args.latency_s:g} s, quantum {args.quantum_deg:g}°, loss {args.loss:g} (seed {args.seed})"
               f"{', commanded only' if args.commanded_only else ''}, {args.body} body"
-              f"{', signed' if key is not None else ''}; Ctrl-C stops", flush=True)
+              f"{', signed' if key is not None else ''}{', no manager' if args.no_manager else ', manager on'}"
+              f"; Ctrl-C stops", flush=True)
         reason = device.run()
     except KeyboardInterrupt:
         t = f" at {device.t_s:.3f} s simulated" if device is not None else ""

@@ -68,7 +68,8 @@ from ..mount import ATTITUDE_GAIN_PER_S, GimbalMount
 from ..platform import BodyMotion
 from . import frames
 from .link import LinkClosed, UdpLink, open_link
-from .protocol import PROGRESS_PERIOD_S, STEP_COMMAND, frame_of_flags, mavlink, new_mavlink
+from .manager import GimbalManager, angular_velocity_of_pitch_yaw_rates
+from .protocol import MAX_COMMAND_RATE_RAD_S, PROGRESS_PERIOD_S, STEP_COMMAND, frame_of_flags, mavlink, new_mavlink
 from .signing import enable_signing, refused_count
 
 __all__ = ["LinkEffects", "SimulatedGimbalDevice", "simulated_gimbal", "DEFAULT_MAX_RATE_RAD_S",
@@ -82,9 +83,6 @@ DEFAULT_MAX_RATE_RAD_S = 3.0
 MAX_CLIENTS = 8
 #: Attitude commands waiting out the link's latency at most; more are refused (and counted).
 MAX_PENDING_COMMANDS = 4096
-#: A commanded angular velocity of larger magnitude, rad/s, is refused as out of range (no gimbal
-#: turns 16 revolutions a second; the device's own joint-rate limit is far below).
-MAX_COMMAND_RATE_RAD_S = 100.0
 #: The status stream's fastest rate, Hz: one status per inner step of 1 ms.
 MAX_STATUS_RATE_HZ = 1000.0
 #: The longest one-way latency, s (a geostationary satellite hop is about 0.25 s).
@@ -262,6 +260,8 @@ class SimulatedGimbalDevice:
     signing_key : bytes, optional
         A 32-byte MAVLink 2 signing key (:mod:`gimbal_lab.mavlink.signing`): sign what the device
         sends and refuse every packet not signed with it.
+    manager : bool
+        Run a gimbal manager on the device's component (:mod:`gimbal_lab.mavlink.manager`).
 
     Attributes
     ----------
@@ -289,7 +289,8 @@ class SimulatedGimbalDevice:
     def __init__(self, link, mount: GimbalMount | None = None, effects: LinkEffects | None = None, *,
                  lockstep: bool = False, system_id: int = 1, component_id: int = mavlink.MAV_COMP_ID_GIMBAL,
                  max_rate_rad_s: float = DEFAULT_MAX_RATE_RAD_S, attitude_gain_per_s: float = ATTITUDE_GAIN_PER_S,
-                 control_period_s: float = 0.002, baud: int = 115200, signing_key: bytes | None = None):
+                 control_period_s: float = 0.002, baud: int = 115200, signing_key: bytes | None = None,
+                 manager: bool = True):
         mount = mount if mount is not None else simulated_gimbal()
         if not isinstance(mount, GimbalMount):
             raise TypeError(f"mount must be a GimbalMount, got {type(mount).__name__}")
@@ -344,6 +345,8 @@ class SimulatedGimbalDevice:
         self.statuses_sent = self.statuses_lost = 0
         self.commands_applied = self.commands_rejected = 0
         self.packets_dropped = self.handler_errors = 0
+        self._euler_rates = None  # (pitch rate, yaw rate) of a manager's rate setpoint, rad/s
+        self.manager = GimbalManager(self) if manager else None
         self._next_heartbeat_wall = 0.0
         self._stepping = None  # lock-step: (first step, last step, next progress wall time) while a step runs
         self._events()
@@ -373,6 +376,30 @@ class SimulatedGimbalDevice:
     def q_rad(self) -> np.ndarray:
         """The joints now (yaw, roll, pitch), rad (the simulation's truth, not the report)."""
         return self.mount.q
+
+    @property
+    def setpoint_flags(self) -> int:
+        """GIMBAL_MANAGER_FLAGS of the setpoint in force: roll and pitch locked, and its yaw frame."""
+        flags = mavlink.GIMBAL_MANAGER_FLAGS_ROLL_LOCK | mavlink.GIMBAL_MANAGER_FLAGS_PITCH_LOCK
+        if self._frame == "earth":
+            return flags | mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK | mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_EARTH_FRAME
+        return flags | mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
+
+    def attitude_in(self, frame: str) -> np.ndarray:
+        """The gimbal's attitude now (the simulation's truth) in the "vehicle" or "earth" frame, 3x3."""
+        R_vb, psi, _ = self._body_state()
+        R_vehicle = frames.gimbal_attitude_matrix(self.kinematics, self.mount.q, R_vb)
+        return frames.rot_z(psi) @ R_vehicle if frame == "earth" else R_vehicle
+
+    def yaw_in(self, frame: str) -> float:
+        """The Z-Y-X yaw of :meth:`attitude_in`, rad (positive right)."""
+        R = self.attitude_in(frame)
+        return math.atan2(R[1, 0], R[0, 0])
+
+    def pitch_in(self, frame: str) -> float:
+        """The Z-Y-X pitch of :meth:`attitude_in`, rad (positive up; the same in both frames)."""
+        R = self.attitude_in(frame)
+        return math.asin(max(-1.0, min(1.0, -R[2, 0])))
 
     def _status_due(self, n: int) -> int:
         return int(math.ceil(n * self._steps_per_status - 1e-9))
@@ -457,6 +484,7 @@ class SimulatedGimbalDevice:
             turn = frames.rot_z(psi) if frame == "earth" else frames.rot_z(psi).T
             self._R_cmd = turn @ self._R_cmd
         self._mode, self._frame, self._omega_cmd, self._cmd_flags = mode, frame, omega_cmd, int(msg.flags)
+        self._euler_rates = getattr(msg, "euler_rates", None) if mode == "rate" else None
         if mode == "attitude":
             self._R_ref = R_ref
             self._R_cmd = R_ref.copy()
@@ -485,6 +513,8 @@ class SimulatedGimbalDevice:
                 if not reachable:
                     flags |= _LIMIT_FLAGS[i]
             w = self.attitude_gain_per_s * (q_target - q)
+        if self._euler_rates is not None:  # a manager's pitch and yaw rates, about the present yaw
+            self._omega_cmd = angular_velocity_of_pitch_yaw_rates(self.yaw_in(self._frame), *self._euler_rates)
         # the commanded (feed-forward) rate, relative to its frame → inertial, in vehicle axes
         omega = self._omega_cmd + psi_rate * _Z if self._frame == "vehicle" else Rz.T @ self._omega_cmd
         try:
@@ -567,6 +597,8 @@ class SimulatedGimbalDevice:
         if now >= self._next_heartbeat_wall:
             self._next_heartbeat_wall = now + _HEARTBEAT_PERIOD_S
             self._heartbeat()
+        if self.manager is not None:
+            self.manager.maybe_send_status(now)
 
     def information_message(self):
         """GIMBAL_DEVICE_INFORMATION of this device (pymavlink message)."""
@@ -608,15 +640,27 @@ class SimulatedGimbalDevice:
 
     def _dispatch(self, msg) -> None:
         kind = msg.get_type()
-        if kind == "GIMBAL_DEVICE_SET_ATTITUDE" and self._addressed_to_me(msg):
-            if not self._valid_attitude_command(msg) or len(self._incoming) >= MAX_PENDING_COMMANDS:
-                self.commands_rejected += 1
-                return
-            self._incoming.append((self._k + self._latency_steps, msg))
-            if self._latency_steps == 0:
-                self._events()
-        elif kind in ("COMMAND_LONG", "COMMAND_INT") and self._addressed_to_me(msg):
+        if not hasattr(msg, "target_system") or not self._addressed_to_me(msg):
+            return
+        if kind == "GIMBAL_DEVICE_SET_ATTITUDE":
+            self.queue_setpoint(msg)
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(msg)
+        elif kind in ("GIMBAL_MANAGER_SET_ATTITUDE", "GIMBAL_MANAGER_SET_PITCHYAW") and self.manager is not None:
+            self.manager.handle_message(msg)
+
+    def queue_setpoint(self, setpoint) -> bool:
+        """Check a GIMBAL_DEVICE_SET_ATTITUDE (or the manager's :class:`~gimbal_lab.mavlink.manager.Setpoint`)
+        at the wire and queue it to take effect after the latency; False (and counted) when refused
+        (None: a setpoint the manager found out of range)."""
+        if (setpoint is None or not self._valid_attitude_command(setpoint)
+                or len(self._incoming) >= MAX_PENDING_COMMANDS):
+            self.commands_rejected += 1
+            return False
+        self._incoming.append((self._k + self._latency_steps, setpoint))
+        if self._latency_steps == 0:
+            self._events()
+        return True
 
     @staticmethod
     def _valid_attitude_command(msg) -> bool:
@@ -642,13 +686,23 @@ class SimulatedGimbalDevice:
 
     def _command(self, msg) -> None:
         """COMMAND_LONG or COMMAND_INT addressed to the device: every one is acknowledged."""
+        manager = self.manager
+        if manager is not None:
+            result = manager.handle_command(msg)
+            if result is not None:
+                self._ack(msg, result)
+                return
         if msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE:
             wanted = _whole_number(msg.param1)
+            answers = {mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION: self.information_message}
+            if manager is not None:
+                answers[mavlink.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION] = manager.information_message
+                answers[mavlink.MAVLINK_MSG_ID_GIMBAL_MANAGER_STATUS] = manager.status_message
             if wanted is None:
                 self._ack(msg, mavlink.MAV_RESULT_DENIED)
-            elif wanted == mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION:
+            elif wanted in answers:
                 self._ack(msg, mavlink.MAV_RESULT_ACCEPTED)
-                self._send_now(self.information_message())
+                self._send_now(answers[wanted]())
             else:
                 self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
         elif msg.command == STEP_COMMAND and msg.get_type() == "COMMAND_LONG":

@@ -20,13 +20,17 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink
 
-__all__ = ["mavlink", "new_mavlink", "STEP_COMMAND", "PROGRESS_PERIOD_S", "GIMBAL_COMPONENT_IDS",
+__all__ = ["mavlink", "new_mavlink", "STEP_COMMAND", "PROGRESS_PERIOD_S", "MAX_COMMAND_RATE_RAD_S", "GIMBAL_COMPONENT_IDS",
            "FRAME_FLAGS", "frame_flags", "frame_of_flags"]
 
 #: Lock-step: advance the simulated clock by param1 seconds (module docstring).
 STEP_COMMAND = mavlink.MAV_CMD_USER_1
 #: A device busy with a long step reports progress this often, s of wall time.
 PROGRESS_PERIOD_S = 0.25
+
+#: A commanded angular velocity of larger magnitude, rad/s, is refused as out of range by the
+#: device and its manager (no gimbal turns 16 revolutions a second).
+MAX_COMMAND_RATE_RAD_S = 100.0
 
 #: MAV_COMP_ID_GIMBAL .. MAV_COMP_ID_GIMBAL6.
 GIMBAL_COMPONENT_IDS = (mavlink.MAV_COMP_ID_GIMBAL, mavlink.MAV_COMP_ID_GIMBAL2, mavlink.MAV_COMP_ID_GIMBAL3,
