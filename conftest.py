@@ -1,14 +1,16 @@
 """Settings for the whole test run (unit tests and notebooks), in one process or under pytest-xdist.
 
 * One BLAS thread, static widgets, 3 replicates per cell in the extension notebooks (below).
-* **The suite's own results store.** The notebooks keep their runs in a store made for this test
-  run (a temporary folder, deleted at the end), never in the user's (``results/store``,
-  ``$GIMBAL_LAB_STORE``): a test run checks the science computed by the code under test. The
+* **The suite's own results store.** The notebooks and the tests keep their runs in a store made
+  for this test run (a temporary folder, deleted at the end), never in the user's
+  (``results/store``, ``$GIMBAL_LAB_STORE``, the user's cache folder): a test run checks the
+  science computed by the code under test. The
   store's keys hold the package's source hash, so a user's entry can never be stale code, but
   they do not hold the versions of numpy, OpenCV or Mesa that computed it, and a test must not
   pass on a run made before an upgrade. Set ``GIMBAL_LAB_TEST_STORE=PATH`` to keep the suite's
   store in PATH and reuse it in the next test run (reruns of one notebook while editing it).
-  Notebooks run with ``GIMBAL_LAB_STORE`` set to that store; unit tests run without it.
+  Every test and notebook runs with ``GIMBAL_LAB_STORE`` set to that store (a test of the store's
+  location, or one that needs a store of its own, sets or removes it).
   Under pytest-xdist every worker uses the one store the controlling process made, so notebooks
   07 and 08 share their paper runs there; the store's claims (``gimbal_lab.runner.ResultsStore``)
   keep two workers from computing one run twice.
@@ -181,15 +183,14 @@ def pytest_collection_modifyitems(session, config, items):
 
 
 def pytest_runtest_setup(item):
-    if _is_notebook(item):  # the kernel nbmake starts for this notebook inherits it
-        os.environ[STORE_ENV] = str(Path(os.environ[TEST_STORE_ENV]).expanduser().absolute())
-        if not _user_replicates:
-            os.environ["GIMBAL_LAB_REPLICATES"] = _SUITE_REPLICATES
+    # the kernel nbmake starts for a notebook inherits it, and so does a command a test starts
+    os.environ[STORE_ENV] = str(Path(os.environ[TEST_STORE_ENV]).expanduser().absolute())
+    if _is_notebook(item) and not _user_replicates:
+        os.environ["GIMBAL_LAB_REPLICATES"] = _SUITE_REPLICATES
 
 
 def pytest_runtest_teardown(item):
-    if _is_notebook(item):
-        os.environ.pop(STORE_ENV, None)
+    os.environ.pop(STORE_ENV, None)
 
 
 # ----------------------------------------------------------------------------------------------

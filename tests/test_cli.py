@@ -49,6 +49,12 @@ def no_runs(monkeypatch):
     monkeypatch.setattr(runner, "run", refuse)
 
 
+@pytest.fixture(autouse=True)
+def own_store(tmp_path, monkeypatch):
+    """Each test's runs in a store of its own (TMP/store) unless it names another."""
+    monkeypatch.setenv(runner.STORE_ENV, str(tmp_path / "store"))
+
+
 @pytest.fixture
 def tiny(tmp_path):
     path = tmp_path / "tiny.toml"
@@ -174,13 +180,13 @@ def test_a_read_only_store_is_one_line(capsys):
         (shared / "other").mkdir()
         (shared / "other" / "store").write_text("x")
         status, _, err = call(["run", "paper", "--config", str(shared / "tiny.toml"), "--out", str(shared / "other"),
-                               "--quiet"], capsys)
+                               "--store", str(shared / "other" / "store"), "--quiet"], capsys)
         assert status == 1, err
         assert_one_line(err, f"results store: cannot create {shared / 'other' / 'store'}: File exists")
         runner.source_hash()  # read while this process can still read every file of the package
         with unwritable(store):
             status, _, err = call(["run", "paper", "--config", str(shared / "tiny.toml"), "--out", str(shared),
-                                   "--quiet"], capsys)
+                                   "--store", str(store), "--quiet"], capsys)
         assert status == 1, err
         assert_one_line(err, f"gimbal-lab run: error: results store: cannot create {store / 'runs'}: Permission denied")
     finally:
@@ -290,29 +296,21 @@ def test_debug_shows_the_traceback_to_a_user(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # a real run: only its own files, stale ones kept and named
 # ------------------------------------------------------------------------------------------------
-def test_run_paper_writes_the_whole_report_and_a_rerun_replaces_only_its_own_files(capsys, tmp_path, monkeypatch,
-                                                                                   tiny):
+def test_run_paper_writes_the_whole_report_a_rerun_the_same_bytes_and_replaces_only_its_own_files(
+        capsys, tmp_path, monkeypatch, tiny):
     """The whole 16-cell grid and the 8 known-lens cells, 2 replicates of 2 revolutions of 9
-    frames: the report's tables, claims, figures, clips and metadata; then a rerun without clips
-    replaces only the files it writes and names the ones it kept. The pipelines' costs are timed
-    in one pass, not the least of 5: the checks hold for any number of passes (their values and
-    the repeats have their own tests in test_studies_paper); the rerun, whose files are under
-    test, not its numbers, reuses the first run's measurement instead of rendering and timing
-    the frames again."""
+    frames: the report's tables, claims, figures, clips and metadata, and the terminal's summary;
+    a rerun over the stored runs computes none, says so first, and leaves every report file
+    byte-identical (the pipelines' CPU costs are read from the store, not timed again); a rerun
+    without clips replaces only the files it writes and names the ones it kept. The costs are
+    timed in one pass, not the least of 5: the checks hold for any number of passes (their values
+    and the repeats have their own tests in test_studies_paper)."""
     import pandas as pd
 
     monkeypatch.setattr("gimbal_lab.studies._params.COST_REPEATS", 1)
-    measured, measure = [], paper.pipeline_costs
-
-    def measure_once(results, *args, **kwargs):
-        if not measured:
-            measured.append(measure(results, *args, **kwargs))
-        return measured[0]
-
-    monkeypatch.setattr(paper, "pipeline_costs", measure_once)
     out = tmp_path / "results"
-    status, stdout, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--jobs", "2"],
-                               capsys)
+    argv = ["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--jobs", "2"]
+    status, stdout, err = call(argv, capsys)
     assert status == 0, err
     report = out / "paper"
     for name in ("summary.csv", "replicates.parquet", "frames.parquet", "verdicts.csv", "claims.md", "study.json",
@@ -336,23 +334,35 @@ def test_run_paper_writes_the_whole_report_and_a_rerun_replaces_only_its_own_fil
     manifest = json.loads((report / MANIFEST).read_text())["files"]
     written = sorted(p.relative_to(report).as_posix() for p in report.rglob("*") if p.is_file() and p.name != MANIFEST)
     assert sorted(manifest) == written and {"clips/sphere.mp4", "clips/aruco.mp4", "claims.md"} <= set(written)
-    assert stdout.strip().splitlines()[-1] == f"Wrote {len(written)} files to {report}; the per-run log is {out / 'run.log'}."
+    lines = stdout.strip().splitlines()
+    assert lines[0] == (f"paper: 48 runs (2 replicates per cell, 2 revolutions each): 0 stored, 48 to compute on 2 "
+                        f"local processes; the store is {tmp_path / 'store'}")
+    # the summary: the tally at both levels, what does not hold (at most 8 lines), claims.md's path
+    failing = verdicts[verdicts.verdict != "holds"]
+    assert lines[1].startswith("Of 45 conditions, at 95 % each: ") and "At the family level" in lines[1]
+    assert lines[-2] == f"Claims, reasons and every table: {report / 'claims.md'}"
+    assert len(lines) == 1 + 1 + (1 + min(len(failing), 8) + (len(failing) > 8) if len(failing) else 0) + 2
+    assert "| id |" not in stdout and "## " not in stdout  # not the file
+    assert lines[-1] == f"Wrote {len(written)} files to {report}; the per-run log is {out / 'run.log'}."
     from gimbal_lab.video import probe_video
 
     info = probe_video(report / "clips" / "sphere.mp4")
     assert (info.codec, info.pixel_format, info.frames) == ("h264", "yuv420p", 18)
 
-    clips = {name: (report / name).read_bytes() for name in ("clips/sphere.mp4", "clips/aruco.mp4")}
-    (report / "claims.md").write_text("edited")  # the lab's own file: replaced
-    status, stdout, err = call(["run", "paper", "--config", str(tiny), "--out", str(out), "--quiet", "--no-clips"],
-                               capsys)
+    files = {name: (report / name).read_bytes() for name in written}
+    status, stdout, err = call(argv, capsys)
+    assert status == 0, err
+    assert stdout.splitlines()[0].endswith("48 stored, 0 to compute on 2 local processes; the store is "
+                                           f"{tmp_path / 'store'}")
+    assert {name: (report / name).read_bytes() for name in written} == files  # every report file
+
+    status, stdout, err = call(argv + ["--no-clips"], capsys)
     assert status == 0, err
     assert stdout.strip().splitlines()[-1] == (
         f"Wrote {len(written) - 4} files to {report}; kept 4 file(s) of an earlier run that this one did not write "
         f"again: clips/aruco.json, clips/aruco.mp4, clips/sphere.json, clips/sphere.mp4; the per-run log is "
         f"{out / 'run.log'}.")
-    assert (report / "claims.md").read_text() != "edited"
-    assert {name: (report / name).read_bytes() for name in clips} == clips
+    assert {name: (report / name).read_bytes() for name in written} == files
     assert [p.name for p in report.iterdir() if p.name.startswith(".")] == [MANIFEST]
 
 

@@ -1,7 +1,9 @@
 """Where the results store is when none is given (gimbal_lab.runner.default_store_root, the CLI's
---store), and how many local workers a sweep starts when it names none (default_jobs)."""
+--store): one store whatever the output folder; and how many local workers a sweep starts when it
+names none (default_jobs)."""
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,10 +34,15 @@ def test_inside_the_checkout_the_store_is_results_store_at_its_root(where, monke
     assert ResultsStore.default().root == ROOT / "results" / "store"
 
 
-def test_outside_the_checkout_the_store_is_results_store_here(tmp_path, monkeypatch):
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the XDG rule is Linux's")
+def test_outside_the_checkout_the_store_is_in_the_users_cache_folder(tmp_path, monkeypatch):
+    """Oracle: the XDG base directory rule, $XDG_CACHE_HOME (default ~/.cache) / the application."""
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     assert checkout_root() is None
-    assert default_store_root() == tmp_path / "results" / "store"
+    assert default_store_root() == tmp_path / "cache" / "gimbal-lab" / "store"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert default_store_root() == Path.home() / ".cache" / "gimbal-lab" / "store"
 
 
 def test_the_variable_overrides_the_default(tmp_path, monkeypatch):
@@ -47,7 +54,9 @@ def test_the_variable_overrides_the_default(tmp_path, monkeypatch):
     monkeypatch.setenv(STORE_ENV, "~/s")
     assert default_store_root() == Path.home() / "s"
     monkeypatch.setenv(STORE_ENV, "  ")  # blank: as if unset
-    assert default_store_root() == tmp_path / "results" / "store"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    if sys.platform.startswith("linux"):
+        assert default_store_root() == tmp_path / "cache" / "gimbal-lab" / "store"
 
 
 def test_a_folder_that_is_not_this_projects_checkout_is_not_one(tmp_path, monkeypatch):
@@ -106,14 +115,21 @@ def test_a_sweep_without_jobs_starts_the_variables_number_of_workers(monkeypatch
     assert caught.value.args == ("in process",)
 
 
-@pytest.mark.parametrize("argv, env, expected", [
-    (["--out", "{tmp}/out"], None, "{tmp}/out/store"),
-    (["--out", "{tmp}/out"], "{tmp}/shared", "{tmp}/shared"),
-    (["--out", "{tmp}/out", "--store", "{tmp}/mine"], "{tmp}/shared", "{tmp}/mine"),
-])
-def test_the_commands_store_is_store_then_the_variable_then_out_store(argv, env, expected, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("argv, env, where, expected", [
+    (["--out", "{tmp}/out"], None, "{tmp}", "{tmp}/cache/gimbal-lab/store"),
+    (["--out", "{tmp}/out"], None, str(ROOT / "notebooks"), str(ROOT / "results" / "store")),
+    (["--out", "{tmp}/out"], "{tmp}/shared", "{tmp}", "{tmp}/shared"),
+    (["--out", "{tmp}/out", "--store", "{tmp}/mine"], "{tmp}/shared", "{tmp}", "{tmp}/mine"),
+], ids=["outside-the-checkout", "inside-the-checkout", "variable", "store-option"])
+def test_the_commands_store_is_store_then_the_variable_then_the_default_never_out(argv, env, where, expected, tmp_path,
+                                                                                 monkeypatch, capsys):
     from gimbal_lab import cli
     from gimbal_lab.studies import paper
+
+    if where.startswith(str(ROOT)) and not EDITABLE:
+        pytest.skip("gimbal_lab is not imported from this checkout")
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the expected cache folder follows the XDG rule")
 
     class Stop(Exception):
         pass
@@ -122,12 +138,49 @@ def test_the_commands_store_is_store_then_the_variable_then_out_store(argv, env,
         raise Stop(store.root)
 
     monkeypatch.setattr(paper, "run_study", run_study)
+    monkeypatch.setattr(runner.ResultsStore, "_open", lambda self: None)  # nothing made in the checkout's store
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.chdir(where.format(tmp=tmp_path))
     if env is not None:
         monkeypatch.setenv(STORE_ENV, env.format(tmp=tmp_path))
     with pytest.raises(Stop) as caught:
         cli.main(["--debug", "run", "paper", "--quiet", *[a.format(tmp=tmp_path) for a in argv]])
     assert caught.value.args == (Path(expected.format(tmp=tmp_path)),)
-    assert f"finished runs are kept in {expected.format(tmp=tmp_path)}" in capsys.readouterr().out
+    assert f"the store is {expected.format(tmp=tmp_path)}" in capsys.readouterr().out
+
+
+TINY_SCENARIO = ('description = "two cells"\n[run]\nreplicates = 2\n[camera]\nfps = 10.0\n[target]\nperiod_s = 1.0\n'
+                 '[sweep]\npointing = ["stabilised", "paper"]\n')
+
+
+def test_a_second_out_folder_computes_no_run(tmp_path, monkeypatch, capsys):
+    """`gimbal-lab run FILE --out A`, then `--out B`: outside a checkout, with no store named, both
+    use the user's cache folder; the second computes no run, says so in its first line, and writes
+    the same tables."""
+    from gimbal_lab import cli
+
+    computed, real = [], runner._run_one
+
+    def run_one(config, *args, **kwargs):
+        computed.append(config)
+        return real(config, *args, **kwargs)
+
+    monkeypatch.setattr(runner, "_run_one", run_one)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "rig.toml").write_text(TINY_SCENARIO)
+    lines = {}
+    for out in ("A", "B"):
+        status = cli.main(["run", "rig.toml", "--out", out, "--jobs", "1", "--quiet", "--no-clips"])
+        assert status == 0
+        lines[out] = capsys.readouterr().out.splitlines()
+    assert len(computed) == 4  # all in the first
+    store = default_store_root()
+    assert len(list((store / "runs").glob("*.parquet"))) == 4 and not (tmp_path / "A" / "store").exists()
+    assert lines["A"][0].endswith(f"0 stored, 4 to compute on 1 local processes; the store is {store}")
+    assert lines["B"][0].endswith(f"4 stored, 0 to compute on 1 local processes; the store is {store}")
+    for name in ("summary.csv", "verdicts.csv", "claims.md"):
+        assert (tmp_path / "A" / "rig" / name).read_bytes() == (tmp_path / "B" / "rig" / name).read_bytes()
 
 
 def test_an_empty_store_option_is_refused(tmp_path, capsys):

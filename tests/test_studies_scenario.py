@@ -363,9 +363,10 @@ def test_a_scenario_on_a_calibration_file_runs_end_to_end_from_the_command_line(
     out = rig / "out"
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl", "LP_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, "-m", "gimbal_lab.cli", "run", str(path), "--out", str(out), "--jobs", "1",
-                           "--quiet"], capture_output=True, text=True, env=env, cwd=rig, timeout=600)
+                           "--store", str(out / "store"), "--quiet"], capture_output=True, text=True, env=env, cwd=rig,
+                          timeout=600)
     assert done.returncode == 0, done.stderr
-    assert f"{path}: 4 runs (2 replicates per cell, 2 revolutions each)" in done.stdout
+    assert f"{path}: 4 runs (2 replicates per cell, 2 revolutions each): 0 stored, 4 to compute" in done.stdout
     report = out / "rig"
     for name in ("claims.md", "summary.csv", "replicates.csv", "verdicts.csv", "study.json", "scenario.toml",
                  "figures/cells.png", "figures/hypotheses_forest.png", "clips/passive-active.mp4"):
@@ -374,7 +375,9 @@ def test_a_scenario_on_a_calibration_file_runs_end_to_end_from_the_command_line(
     assert list(verdicts.condition) == ["all"] and {"p_value", "p_holm", "verdict_holm"} <= set(verdicts.columns)
     assert verdicts.verdict[0] in stats.VERDICTS and verdicts.verdict_holm[0] in stats.VERDICTS
     claims = (report / "claims.md").read_text()
-    assert "tiny rig" in claims and "| p (Holm) | verdict (family) |" in claims and claims in done.stdout
+    assert "tiny rig" in claims and "| p (Holm) | verdict (family) |" in claims
+    assert "Of 1 conditions, at 95 % each: " in done.stdout and f"every table: {report / 'claims.md'}" in done.stdout
+    assert "| p (Holm) |" not in done.stdout  # the terminal gets the summary, not the file
     assert (report / "scenario.toml").read_text() == path.read_text()
     sidecars = list((out / "store").rglob("*.json"))
     assert len(sidecars) == 4

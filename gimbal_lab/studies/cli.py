@@ -17,11 +17,12 @@ PAYOFF_MIN_POINTS = 12
 
 def _add_run_options(p) -> None:
     p.add_argument("--out", default="results", metavar="DIR",
-                   help="output folder (default: results): the report goes to DIR/STUDY, finished runs to "
-                        "DIR/store, the log to DIR/run.log")
+                   help="output folder (default: results): the report goes to DIR/STUDY, the log to DIR/run.log; "
+                        "finished runs go to the store, whatever DIR is")
     p.add_argument("--store", metavar="DIR",
                    help="results store: finished runs are kept in and reused from DIR (default: $GIMBAL_LAB_STORE "
-                        "when set, else OUT/store)")
+                        "when set, else results/store at the repository's root when run inside its checkout, else "
+                        "the user's cache folder, ~/.cache/gimbal-lab/store on Linux)")
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
     p.add_argument("--points", type=int_at_least(PAYOFF_MIN_POINTS), metavar="N",
@@ -105,16 +106,14 @@ def _run(args, parser) -> int:
         parser.error(str(exc))
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    from ..runner import STORE_ENV, ResultsStore, dask_executor, default_jobs, default_store_root
+    from ..runner import ResultsStore, dask_executor, default_jobs, default_store_root
 
     if args.store is not None:
         if not args.store.strip():
             parser.error("--store must name a folder, got an empty string")
         store_root = Path(args.store).expanduser()
-    elif os.environ.get(STORE_ENV, "").strip():
+    else:  # one store whatever --out is (docs/design.md, "Results store and scale")
         store_root = default_store_root()
-    else:
-        store_root = out / "store"
     store = ResultsStore(store_root, read=args.cache)  # a StoreError is one line (gimbal_lab.cli.main)
     try:  # the store may lie elsewhere (--store, $GIMBAL_LAB_STORE): OUT is not made with it
         out.mkdir(parents=True, exist_ok=True)
@@ -138,10 +137,12 @@ def _run(args, parser) -> int:
                 parser.error(f"--scheduler: {exc}")
         # every run the study makes: its grid and what it adds beside it (the paper's known-lens
         # pipelines, the moving drone's arms), when it says so
-        n_runs = len(getattr(module, "all_configs", module.grid)(params))
+        configs = set(getattr(module, "all_configs", module.grid)(params))
+        stored = sum(c in store for c in configs) if store.read else 0
         where = f"the Dask cluster at {args.scheduler}" if executor else f"{args.jobs or default_jobs()} local processes"
-        print(f"{args.study}: {n_runs} runs ({params.replicates} replicates per {'point' if hasattr(params, 'points') else 'cell'}, {params.revolutions:g} "
-              f"revolutions each) on {where}; finished runs are kept in {store_root}", flush=True)
+        print(f"{args.study}: {len(configs)} runs ({params.replicates} replicates per "
+              f"{'point' if hasattr(params, 'points') else 'cell'}, {params.revolutions:g} revolutions each): "
+              f"{stored} stored, {len(configs) - stored} to compute on {where}; the store is {store_root}", flush=True)
         try:
             with overwriting_edited(args.overwrite_edited):  # the study's ReportFolder takes it from here
                 report = module.run_study(params, out, store=store, executor=executor, jobs=args.jobs,
@@ -158,7 +159,9 @@ def _run(args, parser) -> int:
         handler.close()
         if executor is not None:
             executor.shutdown(wait=False)
-    print((report["folder"] / "claims.md").read_text())
+    from .report import summary_lines
+
+    print("\n".join(summary_lines(report["verdicts"], report["folder"] / "claims.md")))
     kept = report.get("kept", [])
     note = ""
     if kept:
