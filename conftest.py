@@ -17,9 +17,10 @@
 * **Worker processes.** Under ``pytest -n N`` each xdist worker's sweeps start ``CPUs // N``
   local workers (``GIMBAL_LAB_JOBS``, read by ``gimbal_lab.runner.default_jobs``), not one per
   CPU each.
-* **Time budget.** The wall time of each test file and notebook is summed and, at the end,
-  compared with ``benchmarks/suite_budget.toml``; a file over its budget is named (a note, never a
-  failure: speed is measured, not asserted). ``--time-budget`` prints every file's time.
+* **Time budget.** The wall time of each test file and notebook is summed; at the end, only when
+  the whole run took longer than the total of ``benchmarks/suite_budget.toml`` (25 minutes on a
+  loaded 2-core machine), the files over their share are named (a note, never a failure: speed is
+  measured, not asserted). ``--time-budget`` prints every file's time whatever the total.
 * **Ctrl-C reaches the commands under test.** A shell starts a background job (``pytest &`` in a
   script) with SIGINT ignored, and a child process inherits an ignored signal across ``exec``: the
   tests that press Ctrl-C on a command would then wait for an exit that never comes. Each process
@@ -261,11 +262,13 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
         terminalreporter.write_line(f"time budget: cannot read {BUDGET_FILE}: {exc}")
         return
     wall = time.time() - _started["wall"]
+    everything = config.getoption("--time-budget")
+    if not everything and (not total_budget or wall <= total_budget):
+        return  # within the total: nothing to say
     rows = budget_rows(_seconds, _cpu_seconds, budget)
     over = [row for row in rows if row[3] is not None and row[1] > row[3]]
-    everything = config.getoption("--time-budget")
     tr = terminalreporter
-    tr.section("time budget (benchmarks/suite_budget.toml: wall seconds on 2 cores at light load)")
+    tr.section("time budget (benchmarks/suite_budget.toml: wall seconds on a loaded 2-core machine)")
     limit_text = f" (budget {total_budget:.0f} s)" if total_budget else ""
     tr.write_line(f"wall time {wall:.0f} s{limit_text}; the tests' wall times add up to {sum(_seconds.values()):.0f} s, "
                   f"their CPU times to {sum(_cpu_seconds.values()):.0f} s; 1-minute load average "
@@ -277,4 +280,5 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
         mark = "  OVER" if limit is not None and seconds > limit else ""
         tr.write_line(f"{seconds:8.1f} {cpu:7.1f} {limit_text:>6s}  {name}{mark}")
     if over and not everything:
-        tr.write_line(f"{len(over)} over budget (a higher load stretches every time); --time-budget lists every file")
+        tr.write_line(f"{len(over)} over their share of the total (every file over by about the same fraction: a slow "
+                      "machine; one far further over: it grew); --time-budget lists every file")

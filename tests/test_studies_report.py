@@ -88,6 +88,18 @@ def test_the_same_report_written_twice_is_the_same_bytes(tmp_path):
     assert b"<dc:date>" not in (first / "figures" / "line.svg").read_bytes()
 
 
+def test_the_forest_plots_caption_says_where_each_kind_of_claim_holds():
+    """"a < b" always; "a ≤ b" and "a ≈ b" (inside the band, not merely near 0) when the table has them."""
+    from gimbal_lab.plotting.study import plot_forest
+
+    v = verdicts()
+    assert "“a ≈ b”" not in plot_forest(v).get_xlabel() and "“a ≤ b”" not in plot_forest(v).get_xlabel()
+    v.loc[0, "kind"], v.loc[1, "kind"] = "equivalent", "non-inferior"
+    label = plot_forest(v).get_xlabel()
+    assert "claim “a < b” holds left of −1" in label and "“a ≤ b”, at least as good, where the interval ends left of +1" \
+        in label and "“a ≈ b” where the interval (90 %) lies inside ±1" in label
+
+
 def test_a_table_with_another_suffix_is_refused(tmp_path):
     rep = a_report()
     rep.files.append(("table.xlsx", rep.files[0][1]))

@@ -199,7 +199,8 @@ BAD_FILES = [
     (GOOD_SWEEP + '[compare.H1]\na = "paper"\nb = "stabilised"\ndelta = 0.01\n',
      r"\[compare.H1\] delta: unknown key; allowed: factor, a, b, kind, metric, floor, statement"),
     (GOOD_SWEEP + '[compare.H1]\na = "paper"\nb = "stabilised"\nstatement = 3\n', r"\[compare.H1\] statement: 3 is not text"),
-    ('[compare.H1]\na = "paper"\nb = "stabilised"\n', r"\[compare.H1\] factor: no factor has both levels .*one of none"),
+    ('[compare.H1]\na = "paper"\nb = "stabilised"\n', r"\[compare.H1\] factor: no \[sweep\] table, so 'paper' and "
+     r"'stabilised' are levels of no factor; allowed: a \[sweep\] table with a factor that has both levels$"),
     ('[run\n', r"not valid TOML"),
 ]
 
@@ -333,6 +334,18 @@ def test_the_replicate_table_and_summary_follow_the_cells(two_levels):
     assert np.allclose(summary.mean_abs_error_m, mean) and np.allclose(summary.ci_low_m, low)
     with pytest.raises(ValueError, match="is not the run of"):
         sc.replicate_table(s, results[::-1])
+
+
+def test_a_scenario_without_hypotheses_is_titled_by_its_cells(tmp_path, two_levels):
+    """claims.md's title says "hypotheses, measured" only when there are hypotheses."""
+    plain = sc.Scenario.from_toml(write(tmp_path, '[run]\nreplicates = 2\n[target]\nperiod_s = 0.4\n'
+                                                  '[sweep]\npointing = ["stabilised", "paper"]\n', "plain.toml"))
+    for s, title in ((plain, "# Scenario plain: the cells, measured (no hypotheses)"),
+                     (two_levels, "# Scenario rig: hypotheses, measured")):
+        results = [fake_result(c, np.ones(round(c.frames_per_revolution), bool),
+                               np.full(round(c.frames_per_revolution), 1e-3 * (1 + seed))) for cell, seed, c in s.runs()]
+        text = sc.hypotheses_markdown(sc.check_hypotheses(s, results), sc.summary_table(sc.replicate_table(s, results), s), s)
+        assert text.splitlines()[0] == title
 
 
 # ----------------------------------------------------------------------------------------------

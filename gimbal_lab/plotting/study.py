@@ -166,7 +166,8 @@ def plot_forest(verdicts, ax=None):
     Every row is one checked condition; the shaded band is ±δ (the smallest effect of interest,
     or the equivalence margin for "≈" claims, or the non-inferiority margin for "≤" claims), so a
     claim "a < b" holds where the interval lies left of 0 and its point left of −1, and "a ≤ b"
-    (at least as good) where the interval (90 %: one-sided 95 % bounds) ends left of +1. Colours
+    (at least as good) where the interval (90 %: one-sided 95 % bounds) ends left of +1, and
+    "a ≈ b" where the interval (90 %) lies inside ±1: a point near 0 alone is not enough. Colours
     give the verdict at 95 %; where the table has the family-level verdict (``verdict_holm``,
     :func:`gimbal_lab.stats.holm`) and it differs, the point is hollow (decisive alone,
     inconclusive in the family). The right margin prints the
@@ -204,6 +205,8 @@ def plot_forest(verdicts, ax=None):
     label = "(a − b) / δ   (symmetric log scale; claim “a < b” holds left of −1"
     if (verdicts["kind"] == "non-inferior").any():
         label += "; “a ≤ b”, at least as good, where the interval ends left of +1"
+    if (verdicts["kind"] == "equivalent").any():
+        label += "; “a ≈ b” where the interval (90 %) lies inside ±1, the shaded band, wherever its point"
     ax.set_xlabel(label + ")")
     units = verdicts["unit"] if "unit" in verdicts else ["m"] * n
     for yi, r, unit in zip(y, verdicts.itertuples(), units):

@@ -280,10 +280,13 @@ def _hypothesis(hid: str, table, factors: dict, fail) -> dict:
         if factor not in factors:
             raise fail(where, "factor", f"{factor!r} is not a [sweep] factor", ", ".join(factors) or "none: [sweep] is empty")
     else:
+        if not factors:
+            raise fail(where, "factor", f"no [sweep] table, so {a!r} and {b!r} are levels of no factor",
+                       "a [sweep] table with a factor that has both levels")
         holding = [f for f, levels in factors.items() if a in levels and b in levels]
         if len(holding) != 1:
             problem = "no factor has both levels" if not holding else f"factors {', '.join(holding)} all have both"
-            raise fail(where, "factor", f"{problem} ({a!r}, {b!r})", "factor = one of " + (", ".join(factors) or "none"))
+            raise fail(where, "factor", f"{problem} ({a!r}, {b!r})", "factor = one of " + ", ".join(factors))
         factor = holding[0]
     for key, level in (("a", a), ("b", b)):
         if level not in factors[factor]:
@@ -684,7 +687,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame, scenario:
     """claims.md of a scenario: the rig, the sweep, every verdict at both levels, the cells."""
     n_cells = len(scenario.cells)
     sweep = "; ".join(f"{factor} ∈ {{" + ", ".join(levels) + "}" for factor, levels in scenario.factors.items())
-    lines = [f"# Scenario {scenario.name}: hypotheses, measured", ""]
+    title = "hypotheses, measured" if len(verdicts) else "the cells, measured (no hypotheses)"
+    lines = [f"# Scenario {scenario.name}: {title}", ""]
     if scenario.description:
         lines += [scenario.description, ""]
     base = TrackingConfig.from_dict(scenario.base)
