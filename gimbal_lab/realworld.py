@@ -25,6 +25,9 @@ import contextlib
 import csv
 import math
 import os
+import queue
+import stat
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -492,14 +495,111 @@ class FrameSource:
         return iter(self._frames)
 
 
-def open_frames(source) -> FrameSource:
+#: How long :func:`open_frames` waits for a named pipe's writer to start sending a video, s.
+PIPE_OPEN_TIMEOUT_S = 20.0
+_END = object()  # a pipe reader's last item
+
+
+def _release_pipe(path: Path) -> None:
+    """Let an open of the named pipe ``path`` that waits for a writer return: open it for writing
+    and close it at once (refused, and nothing to do, when no reader waits)."""
+    with contextlib.suppress(OSError):
+        os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+
+
+def _pipe_frames(items: queue.Queue, stop: threading.Event):
+    try:
+        while True:
+            try:
+                item = items.get(timeout=0.1)  # a short wait: Ctrl-C and SIGTERM act between two
+            except queue.Empty:
+                continue
+            if item is _END:
+                return
+            if isinstance(item, Exception):
+                raise item
+            yield item
+    finally:
+        stop.set()
+
+
+def _open_pipe(path: Path, timeout_s: float) -> FrameSource:
+    """A named pipe's video, opened and read by a thread of its own.
+
+    FFmpeg's open of a named pipe blocks until a writer opens it, and its reads block while the
+    writer is silent, both in native code where no Python signal handler runs: a thread does both
+    here, and the caller waits on a queue in 0.1 s slices, so Ctrl-C and SIGTERM act at once. The
+    open waits at most ``timeout_s``; then the thread's own open is released (see
+    :func:`_release_pipe`) and a ValueError names the pipe.
+    """
+    items, stop = queue.Queue(maxsize=4), threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            with contextlib.suppress(queue.Full):
+                items.put(item, timeout=0.1)
+                return True
+        return False
+
+    def read() -> None:
+        capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)  # one backend: each would open the pipe again
+        try:
+            if not capture.isOpened():
+                put(ValueError(f"cannot read the named pipe {str(path)!r} as a video (nothing, or not a video, "
+                               "was written to it)"))
+                return
+            size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+            try:
+                _check_frame_size(*size, f"video {str(path)!r}")
+            except ValueError as exc:
+                put(exc)
+                return
+            if not put(capture.get(cv2.CAP_PROP_FPS) or 30.0):
+                return
+            while not stop.is_set():
+                ok, frame = capture.read()
+                if not ok or not put(frame[..., ::-1].copy()):
+                    break
+            put(_END)
+        finally:
+            capture.release()
+
+    thread = threading.Thread(target=read, name=f"gimbal-lab pipe reader {path.name}", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while True:
+            try:
+                fps = items.get(timeout=0.1)
+                break
+            except queue.Empty:
+                if time.monotonic() >= deadline:
+                    raise ValueError(f"named pipe {str(path)!r}: no video arrived within {timeout_s:g} s (start the "
+                                     "program that writes it first)") from None
+    except BaseException:
+        stop.set()
+        for _ in range(20):  # release the thread's open (1 s at most; a writer that is silent keeps its read)
+            _release_pipe(path)
+            thread.join(0.05)
+            if not thread.is_alive():
+                break
+        raise
+    if isinstance(fps, Exception):
+        raise fps
+    return FrameSource(str(path), fps, None, _pipe_frames(items, stop))
+
+
+def open_frames(source, pipe_timeout_s: float | None = None) -> FrameSource:
     """Open a video file, a folder of images or a camera index as an iterator of RGB frames.
 
     Parameters
     ----------
     source : str, os.PathLike or int
         A camera index (an int, or a string of digits), a folder (its images, sorted by name),
-        an image file or a video file.
+        an image file, a video file or a named pipe a video is written to.
+    pipe_timeout_s : float, optional
+        How long to wait for a named pipe's video to start, s (:data:`PIPE_OPEN_TIMEOUT_S`). A
+        pipe is read by a thread, so Ctrl-C and SIGTERM stop the wait and the reads at once.
 
     Returns
     -------
@@ -524,6 +624,8 @@ def open_frames(source) -> FrameSource:
     path = Path(source)
     if not path.exists():
         raise FileNotFoundError(f"no such file or folder: {str(path)!r}")
+    if stat.S_ISFIFO(path.stat().st_mode):
+        return _open_pipe(path, PIPE_OPEN_TIMEOUT_S if pipe_timeout_s is None else float(pipe_timeout_s))
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
@@ -619,6 +721,10 @@ def find_board(gray: np.ndarray, board: str, pattern, square_m: float, marker_m:
         objects = charuco.getChessboardCorners()[ids.reshape(-1)]
         return objects.astype(float), corners.reshape(-1, 2).astype(float)
     raise ValueError(f"board must be 'chessboard' or 'charuco', got {board!r}")
+
+
+#: Lens models :func:`calibrate` fits.
+CALIBRATION_MODELS = ("brown_conrady", "rational")
 
 
 #: Lens models :func:`calibrate` fits.
@@ -765,7 +871,7 @@ def _make_localiser(target: str, calibration: Calibration, dictionary: str, mark
 
 def track(source, out_dir, target: str, calibration: Calibration, dictionary: str = "DICT_4X4_50",
           marker_length_m: float = 0.30, radius_m: float = 0.10, max_frames: int | None = None,
-          progress: bool = True, video: bool = True, gimbal=None):
+          progress: bool = True, video: bool = True, gimbal=None, keep_rows: bool = True):
     """Detect and localise the target in every frame of a recording; write ``track.mp4`` and ``track.csv``.
 
     Parameters
@@ -794,12 +900,16 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
         cannot be steered on) the loop stops as after Ctrl-C. After a Ctrl-C,
         ``gimbal.unsteered(n, uv_px)`` logs the last kept frame if its ``frame`` call did not.
         The caller closes it.
+    keep_rows : bool
+        Return the rows written as well (True); False streams them to the CSV only and returns an
+        empty table, so memory stays flat however long the source (a live camera).
 
     Returns
     -------
     pandas.DataFrame
-        The rows written; ``df.attrs`` holds ``frames``, ``seconds``, ``fps`` (frames per second of
-        the whole loop: read, detect, annotate, write), ``interrupted`` and ``written`` (the paths).
+        The rows written (none with ``keep_rows=False``); ``df.attrs`` holds ``frames``,
+        ``detected`` (frames with a detection), ``seconds``, ``fps`` (frames per second of the
+        whole loop: read, detect, annotate, write), ``interrupted`` and ``written`` (the paths).
 
     Notes
     -----
@@ -834,7 +944,7 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     remove_leftovers(out)  # the temporary files of a killed earlier run
     cam = calibration.intrinsics
     tmp = {key: temporary_name(path) for key, path in paths.items()}
-    rows, writer, interrupted, n = [], None, False, 0
+    rows, writer, interrupted, n, detected = [], None, False, 0, 0
     total = frames.count if max_frames is None else min(frames.count or max_frames, max_frames)
     bar = None
     if progress:
@@ -873,7 +983,9 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
                         if video:
                             writer.write(bgr[..., ::-1])
                         table.writerows(new)
-                        rows += new
+                        if keep_rows:
+                            rows += new
+                        detected += bool(found)
                         n += 1
                     if bar is not None:
                         bar.update(1)
@@ -900,7 +1012,7 @@ def track(source, out_dir, target: str, calibration: Calibration, dictionary: st
     seconds = time.perf_counter() - start
     df = pd.DataFrame(rows, columns=list(TRACK_COLUMNS))
     written = [paths["csv"]] + ([paths["video"]] if writer is not None else [])
-    df.attrs.update(frames=n, seconds=seconds, fps=n / seconds if seconds > 0 else math.nan, interrupted=interrupted,
+    df.attrs.update(frames=n, detected=detected, seconds=seconds, fps=n / seconds if seconds > 0 else math.nan, interrupted=interrupted,
                     written=written)
     return df
 

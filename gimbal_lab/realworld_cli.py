@@ -82,6 +82,20 @@ def add_parsers(subparsers) -> None:
     trk.set_defaults(func=_track_command, _parser=trk)
 
 
+def _quiet_native_logs(args) -> None:
+    """Keep OpenCV's and FFmpeg's own log lines (a damaged file's "moov atom not found", a missing
+    camera's warnings) out of the terminal, where the command's one-line error says what went
+    wrong; ``gimbal-lab --debug`` leaves them as the libraries print them, and so does a level the
+    user set in OPENCV_LOG_LEVEL or OPENCV_FFMPEG_LOGLEVEL."""
+    if getattr(args, "debug", False):
+        return
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET; read at OpenCV's first FFmpeg open
+    if os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT") == "SILENT":  # read when cv2 is imported
+        import cv2
+
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # in case it was imported before
+
+
 def _limited(frames, max_frames):
     for k, frame in enumerate(frames):
         if max_frames is not None and k >= max_frames:
@@ -92,6 +106,7 @@ def _limited(frames, max_frames):
 def _calibrate_command(args, parser) -> int:
     from .outputs import OutputError, atomic_path, check_new_file
 
+    _quiet_native_logs(args)
     if args.board == "charuco" and args.marker is None:
         parser.error("--board charuco needs --marker METRES (the side of a marker)")
     if args.marker is not None and not args.marker < args.square:
@@ -125,6 +140,7 @@ def _calibrate_command(args, parser) -> int:
 def _track_command(args, parser) -> int:
     from .outputs import OutputError, check_writable_folder
 
+    _quiet_native_logs(args)
     out = Path(args.out)
     if args.signing_key_file is not None and args.gimbal is None:
         parser.error("--signing-key-file needs --gimbal ADDRESS (it signs the gimbal link)")
@@ -145,7 +161,8 @@ def _track_command(args, parser) -> int:
         if args.gimbal is not None:
             steer = _open_gimbal(args, out, calibration, parser)
         df = rw.track(args.source, out, args.target, calibration, args.dictionary, args.marker_length, args.radius,
-                      args.max_frames, progress=not args.no_progress, video=not args.no_video, gimbal=steer)
+                      args.max_frames, progress=not args.no_progress, video=not args.no_video, gimbal=steer,
+                      keep_rows=False)
     except (FileNotFoundError, ValueError, TypeError) as exc:
         parser.error(str(exc))
     finally:
@@ -159,7 +176,7 @@ def _track_command(args, parser) -> int:
             print(f"gimbal-lab track: error: steering stopped after frame {a['frames'] - 1}: {steer.failure}",
                   file=sys.stderr)
             return 1
-    detected = df.loc[df["target"] != "", "frame"].nunique()
+    detected = a["detected"]
     written = " and ".join(str(p) for p in a["written"])
     stale = "" if not args.no_video or not (out / "track.mp4").exists() else \
         f"; {os.path.join(args.out, 'track.mp4')} is an earlier run's, left in place"

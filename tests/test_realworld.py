@@ -523,3 +523,172 @@ def test_a_rational_calibration_drives_the_simulated_camera(tmp_path):
     through_lens = project(centre_cam, camera.intrinsics, lens)[0]
     assert np.hypot(*(through_lens - project(centre_cam, camera.intrinsics)[0])) > 20.0
     assert np.hypot(*(found - through_lens)) < 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# named pipes, native log lines, long sources
+# --------------------------------------------------------------------------------------------
+
+
+def tiny_video(path, n=20):
+    """An H.264 MP4 of n 64 x 48 frames, each a flat grey of its own level (10 k)."""
+    from gimbal_lab.video import VideoWriter
+
+    writer = VideoWriter(path, 30.0)
+    for k in range(n):
+        writer.write(np.full((48, 64, 3), 10 * k, np.uint8))
+    writer.close()
+    return path
+
+
+def test_a_named_pipe_is_read_like_the_video_written_to_it(tmp_path):
+    """A writer that starts after the open: the pipe's frames are the file's."""
+    import os
+    import threading
+    import time
+
+    video = tiny_video(tmp_path / "tiny.mp4")
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+
+    def writer():
+        time.sleep(0.3)
+        with open(pipe, "wb") as handle:
+            handle.write(video.read_bytes())
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    source = rw.open_frames(pipe, pipe_timeout_s=30.0)
+    from_pipe = list(source)
+    thread.join()
+    from_file = list(rw.open_frames(video))
+    assert source.fps == 30.0 and len(from_pipe) == len(from_file) == 20
+    assert all(np.array_equal(a, b) for a, b in zip(from_pipe, from_file))
+
+
+_PIPE_WITHOUT_WRITER = """
+import sys, threading
+from gimbal_lab import realworld as rw
+try:
+    rw.open_frames(sys.argv[1], pipe_timeout_s=0.5)
+except ValueError as exc:
+    print(exc)
+print("reader threads left:", sum(t.name.startswith("gimbal-lab pipe reader") for t in threading.enumerate()))
+"""
+
+
+def test_a_named_pipe_without_a_writer_times_out_and_frees_its_reader(tmp_path):
+    """In a child process (an open blocked in FFmpeg would hang the test run, not fail it)."""
+    import os
+    import subprocess
+    import sys
+
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    done = subprocess.run([sys.executable, "-c", _PIPE_WITHOUT_WRITER, str(pipe)], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "OPENCV_LOG_LEVEL": "SILENT"})
+    assert done.stdout.splitlines() == [f"named pipe {str(pipe)!r}: no video arrived within 0.5 s (start the program "
+                                        "that writes it first)", "reader threads left: 0"], done.stderr
+
+
+def test_sigterm_stops_track_on_a_silent_named_pipe(tmp_path):
+    """A writer that opens the pipe and sends nothing: FFmpeg's read blocks in native code, where no
+    Python signal handler runs; the pipe's reader thread keeps the command's own thread waiting in
+    Python, so SIGTERM stops it (exit 143, one line) instead of being held until the writer speaks."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    calibration = rw.save_calibration(tmp_path / "cam.yml", rw.Calibration(Intrinsics.from_fov(64, 48, 1.0), None))
+    child = subprocess.Popen([sys.executable, "-m", "gimbal_lab.cli", "track", str(pipe), "--target", "sphere",
+                              "--calibration", str(calibration), "--out", str(tmp_path / "out"), "--no-progress"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writer = None
+    try:
+        deadline = time.monotonic() + 60
+        while writer is None:  # a non-blocking open for writing succeeds once the command reads the pipe
+            assert child.poll() is None and time.monotonic() < deadline, "track did not open the pipe"
+            try:
+                writer = os.open(pipe, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError:
+                time.sleep(0.05)
+        time.sleep(0.5)  # FFmpeg now waits in its read
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=20)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.communicate()
+        if writer is not None:
+            os.close(writer)
+    assert child.returncode == 143
+    assert err.strip().splitlines() == ["gimbal-lab track: SIGTERM: interrupted"]
+
+
+@pytest.mark.parametrize("command", ["track", "calibrate"])
+def test_native_log_lines_stay_out_of_the_terminal_unless_debug(tmp_path, command):
+    """A damaged video: FFmpeg itself prints "moov atom not found" (seen with --debug); without it the
+    command's one-line error is the only line on stderr."""
+    import os
+    import subprocess
+    import sys
+
+    damaged = tmp_path / "damaged.mp4"
+    damaged.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    calibration = rw.save_calibration(tmp_path / "cam.yml", rw.Calibration(CAM, None))
+    extra = (["--target", "aruco", "--calibration", str(calibration), "--out", str(tmp_path / "out")]
+             if command == "track" else ["--out", str(tmp_path / "cam_out.yml")])
+
+    # the user's environment without the levels (an in-process command of another test may have set them)
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_LOG_LEVEL", "OPENCV_FFMPEG_LOGLEVEL")}
+
+    def stderr_of(*first):
+        done = subprocess.run([sys.executable, "-m", "gimbal_lab.cli", *first, command, str(damaged), *extra,
+                               "--no-progress"], capture_output=True, text=True, timeout=120, env=env)
+        assert done.returncode == 2
+        return done.stderr.strip().splitlines()
+
+    assert stderr_of() == [f"gimbal-lab {command}: error: cannot read {str(damaged)!r} as a video or an image "
+                           "(unknown format or damaged file)"]
+    assert any("moov atom not found" in line for line in stderr_of("--debug"))
+
+
+def test_track_streams_its_rows_to_disk(tmp_path, monkeypatch):
+    """keep_rows=False (the command line's): memory does not grow with the source. Python's
+    allocations (tracemalloc) at their peak over 2,000 and 20,000 frames of a synthetic source (a
+    detection in every other frame, one row a frame): kept rows add about 0.48 KB a frame (8.6 MB for the 18,000 more; measured),
+    streamed ones nothing (the peak moved by under 0.01 MB; measured). Bound: 1 MB."""
+    import itertools
+    import tracemalloc
+
+    frame = np.zeros((48, 64, 3), np.uint8)
+    calibration = rw.Calibration(Intrinsics.from_fov(64, 48, 1.0), None)
+    one = [("7", np.array([31.5, 23.5]), np.array([0.01, 0.02, 1.5]), None)]
+    calls = itertools.count()  # a detection in every other frame; the others get their empty row
+    monkeypatch.setattr(rw, "_make_localiser", lambda *args: (lambda rgb: [] if next(calls) % 2 else one,
+                                                               lambda bgr, found: None))
+
+    def peak_bytes(n, keep_rows):
+        monkeypatch.setattr(rw, "open_frames", lambda source: rw.FrameSource("synthetic", 30.0, n,
+                                                                             (frame for _ in range(n))))
+        tracemalloc.start()
+        try:
+            df = rw.track("ignored", tmp_path / f"{n}-{keep_rows}", "aruco", calibration, progress=False, video=False,
+                          keep_rows=keep_rows)
+            return tracemalloc.get_traced_memory()[1], df
+        finally:
+            tracemalloc.stop()
+
+    peak_bytes(10, False)  # the first run's imports are not the rows'
+    small, df = peak_bytes(2_000, False)
+    large, df = peak_bytes(20_000, False)
+    assert df.empty and df.attrs["frames"] == 20_000 and df.attrs["detected"] == 10_000
+    assert sum(1 for _ in open(tmp_path / "20000-False" / "track.csv")) == 20_001  # every row, on disk
+    assert large - small < 1_000_000
+    kept_small, _ = peak_bytes(2_000, True)
+    kept_large, df = peak_bytes(20_000, True)
+    assert len(df) == 20_000 and kept_large - kept_small > 4_000_000  # what the bound would catch
