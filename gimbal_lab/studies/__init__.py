@@ -18,7 +18,8 @@ __all__ = ["STUDIES", "load"]
 #: Study name → module (``gimbal-lab run --list`` prints them).
 STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone",
            "lens-sweep": "gimbal_lab.studies.lens_sweep", "occlusion": "gimbal_lab.studies.occlusion",
-           "link": "gimbal_lab.studies.link", "payoff": "gimbal_lab.studies.payoff"}
+           "link": "gimbal_lab.studies.link", "payoff": "gimbal_lab.studies.payoff",
+           "light": "gimbal_lab.studies.light"}
 
 
 def load(name: str):
