@@ -15,36 +15,46 @@ a job scheduler's time limit) stops a command as Ctrl-C does, says the same, and
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
 
 
 def _interrupted_at_start(signum, frame):
     """Ctrl-C while the command line starts or ends (imports, parsing, exit): one line and exit 130,
-    never a traceback. SystemExit unwinds quietly through any import in progress."""
-    try:
-        sys.stderr.write("\ngimbal-lab: interrupted\n")
-    except Exception:  # noqa: BLE001 - stderr closed: the exit status says it
-        pass
-    raise SystemExit(130)
+    never a traceback. The process ends here (``os._exit``, after flushing what was printed): an
+    exception raised from a handler can land where Python ignores it (a weak reference's callback
+    inside the import system), and the Ctrl-C would be lost. Nothing is being written yet (or any
+    more) at these moments."""
+    for stream, text in ((sys.stdout, ""), (sys.stderr, "\ngimbal-lab: interrupted\n")):
+        try:
+            stream.write(text)
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed stream: the exit status says it
+            pass
+    os._exit(130)
 
 
 def _launched() -> bool:
     """Is this process the ``gimbal-lab`` command (its console script, or ``python -m gimbal_lab.cli``),
     rather than a program or test that imports this module?"""
     main = sys.modules.get("__main__")
-    name = os.path.basename(getattr(main, "__file__", None) or "")
-    return name in ("gimbal-lab", "cli.py") and threading.current_thread() is threading.main_thread()
+    return os.path.basename(getattr(main, "__file__", None) or "") in ("gimbal-lab", "cli.py")
 
 
-# First of all, before the imports below: from here until the command itself runs, Ctrl-C is one
-# line (the interpreter's own start-up, before this module is imported, is beyond the package's reach).
+# First of all, before any import that runs Python code (``signal`` and ``threading`` build classes
+# and enums: a Ctrl-C amid them was a traceback): from here until the command itself runs, Ctrl-C
+# is one line. The interpreter's own start-up, before this module is imported, is beyond reach.
 if _launched():
-    signal.signal(signal.SIGINT, _interrupted_at_start)
+    import _signal  # the C module beneath ``signal``: nothing of Python's runs before the handler
+
+    try:
+        _signal.signal(_signal.SIGINT, _interrupted_at_start)
+    except ValueError:  # not the main thread: its caller's handling stands
+        pass
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import signal  # noqa: E402
+import threading  # noqa: E402
 
 from .argtypes import length_m, nonnegative_int, positive_int  # noqa: F401 (the commands' types, kept here too)
 
@@ -177,14 +187,28 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGINT, _interrupted_at_start)
 
 
+class _CtrlC:
+    """The command's SIGINT handler: KeyboardInterrupt, as Python's own, and a note that it came
+    (a library may turn the KeyboardInterrupt into another error: numpy, amid its C extensions'
+    import, raises an ImportError that no longer names it)."""
+
+    def __init__(self):
+        self.received = False
+
+    def __call__(self, signum, frame):
+        self.received = True
+        raise KeyboardInterrupt
+
+
 def _main(argv, launched: bool) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
         parser.print_help()
         return EXIT_USAGE
+    ctrl_c = _CtrlC()
     if launched:  # the command's own handling of Ctrl-C (what is kept, exit 130) takes over
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, ctrl_c)
     # a command module sets ``_parser`` to its sub-parser so its errors name the sub-command
     command = getattr(args, "_parser", None) or parser
     terminated: list = []  # SIGTERM's number once it arrived
@@ -204,7 +228,7 @@ def _main(argv, launched: bool) -> int:
         print(f"\n{command.prog}: {'SIGTERM: ' if terminated else ''}{said}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - every error is one line unless --debug
-        if _raised_by_ctrl_c(exc):  # e.g. numpy turns a Ctrl-C amid its import into an ImportError
+        if ctrl_c.received or _raised_by_ctrl_c(exc):  # e.g. numpy turns a Ctrl-C amid its import into an ImportError
             print(f"\n{command.prog}: {'SIGTERM: ' if terminated else ''}interrupted", file=sys.stderr)
             return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
         known = _known(exc)
