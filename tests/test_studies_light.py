@@ -369,3 +369,13 @@ def test_the_shipped_config_is_the_registered_full_size():
     assert (shipped.points, shipped.calibration_seeds, shipped.seeds, shipped.design_seed) == (40, (100, 101),
                                                                                              [200, 201, 202, 203, 204], 40)
     assert shipped.exposures_ms == (0.5, 1.0, 2.0, 4.0, 8.0, 16.7)
+
+
+def test_too_few_points_with_a_response_leave_the_ranking_out_not_the_report():
+    study = L.LightStudy(points=12, calibration_seeds=(100,), replicates=3, exposures_ms=(1, 4, 16.7), bootstrap=50)
+    calibration, tests, results = _fake_map(study)
+    keep = tests["point"] < 3  # only three points tested
+    tables = L.analyse(calibration, tests[keep].reset_index(drop=True),
+                       [r for r, k in zip(results, keep) if k], study)
+    assert tables["ranking"]["s1"].isna().all() and int(tables["ranking"]["points"].iloc[0]) == 3
+    assert "Not ranked: rbd_fast needs at least 12 points" in L.claims_markdown(tables, study)

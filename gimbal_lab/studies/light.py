@@ -637,8 +637,13 @@ def analyse(calibration_results, test_index_table, test_results, study: LightStu
     verdicts = point_verdicts(responses, table)
     points = point_table(verdicts, table, best, streak_covariate_px(table, study))
     u = points[[f"u_{n}" for n in FACTOR_NAMES]].to_numpy(float)
-    ranking = rank_factors(u, points["delta_m"], harmonics=study.harmonics, bootstrap=study.bootstrap,
-                           seed=study.design_seed)
+    try:
+        ranking = rank_factors(u, points["delta_m"], harmonics=study.harmonics, bootstrap=study.bootstrap,
+                               seed=study.design_seed)
+    except ValueError:  # too few points with a response: the report says so rather than failing after the runs
+        ranking = pd.DataFrame({"factor": list(FACTOR_NAMES), "s1": math.nan, "s1_low": math.nan,
+                                "s1_high": math.nan, "rank": math.nan,
+                                "points": int(np.isfinite(points["delta_m"].to_numpy(float)).sum())})
     decided = points[points["class"] != "open"]
     boundary = fit_boundary(decided["s_px"], decided["class"] == "pays", bootstrap=study.bootstrap,
                             seed=study.design_seed)
@@ -703,6 +708,8 @@ def claims_markdown(tables: dict, study: LightStudy) -> str:
               f"bootstrap interval, {study.bootstrap} resamples, {int(ranking['points'].iloc[0])} points).", "",
               "| rank | factor | S1 [95 % CI] |", "|---|---|---|"]
     labels = {f.name: f.label for f in FACTORS}
+    if ranking["s1"].isna().all():
+        lines += ["", f"Not ranked: rbd_fast needs at least {MIN_POINTS} points with a response."]
     lines += [f"| {r.rank} | {md_cell(labels[r.factor])} | {r.s1:.2f} [{r.s1_low:.2f}, {r.s1_high:.2f}] |"
               for r in ranking.itertuples()]
     lines += ["", f"Smallest Holm-adjusted p in the family: {format_p(v['p_holm'].min())}."]
