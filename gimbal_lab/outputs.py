@@ -50,6 +50,7 @@ __all__ = ["OutputError", "ReportInterrupted", "ReportNotWritten", "atomic_path"
 #: The manifest of a report folder: the files the lab wrote there, with size and SHA-256.
 MANIFEST = ".gimbal-lab-manifest.json"
 _STAGING = ".gimbal-lab-staging-"
+_ASIDE_MARK = ".files-a-commit-replaces"  # inside a commit's aside folder (a staging folder has none)
 _PARTIAL = ".partial-"
 _HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname())
 
@@ -378,7 +379,9 @@ class ReportFolder:
     A failure at any step (disk full, an immutable file, ...) undoes the steps done: new files
     are removed, the kept ones renamed back (renames need no space), folders it made removed,
     so the folder is byte for byte what it was, and :class:`ReportNotWritten` says so. If even
-    that fails, the error names the files that are new and the folder holding the old ones.
+    that fails, the error names the files that are new and the folder holding the old ones. A
+    commit whose process was killed (SIGKILL, a power cut) is undone the same way by the next
+    ``check()``: its manifest still has pending entries, and its aside folder the old files.
     Files the manifest lists that this report did not write are kept (:attr:`kept`); nothing
     else is ever deleted.
     """
@@ -428,10 +431,17 @@ class ReportFolder:
 
     def check(self) -> None:
         """Refuse a folder that cannot be written, holds files the lab did not write there, or
-        holds a lab file edited since (unless edited files are to be overwritten)."""
+        holds a lab file edited since (unless edited files are to be overwritten). A commit a
+        killed process left half done is undone first."""
+        self._check(recover=True)
+
+    def _check(self, recover: bool) -> None:
         check_writable_folder(self.path, self.what)
         if not self.path.is_dir():
             return
+        if recover:  # (the commit calls this under the folder's lock already, and recovers nothing)
+            with folder_lock(self.path):
+                self._recover()
         remove_leftovers(self.path)
         known = set(self._manifest().get("files", {}))
         unknown = [name for name in _files(self.path) if name not in known]
@@ -478,6 +488,42 @@ class ReportFolder:
                 with contextlib.suppress(OSError):
                     self.path.rmdir()  # only if nothing was committed (an empty folder this call made)
 
+    def _recover(self) -> None:
+        """Undo a commit its process was killed in (call under the folder's lock).
+
+        A killed commit leaves its manifest with pending entries and the files it replaced in its
+        aside folder (a leftover of a dead process): those are renamed back, the files it added
+        removed and its manifest restored, so the folder is the earlier report again. An aside
+        folder next to a manifest with nothing pending belongs to a commit that was done (or had
+        not begun): it is only removed."""
+        try:
+            entries = list(os.scandir(self.path))
+        except OSError:
+            return
+        for entry in entries:
+            aside = Path(entry.path)
+            if not (entry.name.startswith(_STAGING) and entry.is_dir(follow_symlinks=False)
+                    and (aside / _ASIDE_MARK).exists() and _owner_gone(entry.name)):
+                continue
+            files = self._manifest().get("files", {})
+            pending = {name: e for name, e in files.items() if isinstance(e, dict) and e.get("pending")}
+            if pending:
+                for name, e in pending.items():
+                    path = self.path / name
+                    if (aside / name).is_file():
+                        os.replace(aside / name, path)
+                    elif e.get("was") is None:  # a file the killed commit added (or was about to)
+                        if _is_record_of(path, e):
+                            os.unlink(path)
+                        if path.parent != self.path:
+                            with contextlib.suppress(OSError):
+                                path.parent.rmdir()  # a folder it made, if nothing else is in it
+                if (aside / MANIFEST).is_file():
+                    os.replace(aside / MANIFEST, self.manifest_path)
+                else:
+                    os.unlink(self.manifest_path)  # the killed commit was the folder's first
+            shutil.rmtree(aside, ignore_errors=True)
+
     def _write_manifest(self, files: dict) -> None:
         data = {"format": 1, "written_by": "gimbal-lab",
                 "note": "files gimbal-lab wrote in this folder; it refuses to write into a folder holding others",
@@ -493,7 +539,7 @@ class ReportFolder:
     def _commit(self, tmp: Path) -> None:
         new = _files(tmp)
         with folder_lock(self.path):
-            self.check()  # a file may have appeared, or been edited, while the report was computed
+            self._check(recover=False)  # a file may have appeared, or been edited, meanwhile
             files = {name: entry for name, entry in self._manifest().get("files", {}).items()
                      if os.path.lexists(self.path / name)}
             stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
@@ -542,6 +588,7 @@ class _Commit:
     def _keep_aside(self) -> None:
         """Step 1: hard-link (or copy) every file to be replaced into ``aside``; nothing visible changes."""
         self.aside.mkdir()
+        (self.aside / _ASIDE_MARK).touch()
         for name in [*self.new, MANIFEST]:
             target = self.root / name
             if not os.path.lexists(target):

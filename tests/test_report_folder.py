@@ -528,3 +528,57 @@ def test_a_ctrl_c_at_start_ends_the_process_even_where_python_ignores_exceptions
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == 130 and done.stdout == "printed before\n", done
     assert done.stderr == "\ngimbal-lab: interrupted\n"
+
+
+KILLED_COMMIT = """
+import os, signal, sys
+from pathlib import Path
+from gimbal_lab import outputs
+out, k, files = Path(sys.argv[1]), int(sys.argv[2]), eval(sys.argv[3])
+real, calls = os.replace, []
+
+def replace(src, dst):
+    calls.append(dst)
+    if len(calls) == k:
+        os.kill(os.getpid(), signal.SIGKILL)  # the process dies here, as under the OOM killer or kill -9
+    real(src, dst)
+
+outputs.os.replace = replace
+with outputs.ReportFolder(out).staging() as tmp:
+    for name, data in files.items():
+        (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / name).write_bytes(data)
+print("committed", len(calls), flush=True)
+"""
+
+
+def test_a_commit_killed_at_any_rename_is_undone_by_the_next_run(tmp_path):
+    """SIGKILL at each rename of a commit (the pending manifest, each file, the last manifest):
+    the next run's check puts the earlier report back byte for byte (or, killed after its last
+    manifest, keeps the whole new one), and then writes its own report whole."""
+    import sys
+
+    k, outcomes = 1, []
+    while True:
+        out = tmp_path / f"k{k}"
+        _write(ReportFolder(out), OLD)
+        before = _snapshot(out)
+        done = subprocess.run([sys.executable, "-c", KILLED_COMMIT, str(out), str(k), repr(NEW)],
+                              capture_output=True, text=True, timeout=120)
+        if done.returncode == 0:
+            assert done.stdout.startswith("committed") and _is_new_report(out)
+            break
+        assert done.returncode == -9, done.stderr
+        ReportFolder(out).check()
+        after = _snapshot(out)
+        if after == before:
+            outcomes.append("old")
+        else:
+            assert _is_new_report(out), (k, sorted(after))
+            outcomes.append("new")
+        _write(ReportFolder(out), NEW)
+        assert _is_new_report(out)
+        k += 1
+    # the pending manifest, 4 files, the last manifest: killed at the first five, the old report;
+    # at the last, the new one is whole once its manifest is in place (killed before it: old)
+    assert outcomes == ["old"] * 6, outcomes
