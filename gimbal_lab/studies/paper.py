@@ -398,7 +398,7 @@ def _pipeline_estimator(c: TrackingConfig, pipeline: str) -> Estimator:
                      aruco_refinement=c.estimator.aruco_refinement)
 
 
-def pipeline_costs(results, repeats: int | None = None, every: int = 1) -> pd.DataFrame:
+def pipeline_costs(results, repeats: int | None = None, every: int = 1, progress: bool = False) -> pd.DataFrame:
     """CPU cost per frame of each pipeline's detection and localisation, measured apart from the runs.
 
     Per target, distortion and trajectory, the frames are the measured revolution of the first
@@ -408,7 +408,8 @@ def pipeline_costs(results, repeats: int | None = None, every: int = 1) -> pd.Da
     its one localiser, :meth:`gimbal_lab.config.Estimator.build` without the alternative) is timed
     on those same frames with :func:`time.process_time`, the least of ``repeats`` passes
     (:func:`gimbal_lab.studies._params.cpu_seconds_per_frame`; 5 by default). "active (best)" and
-    "best passive" run the same estimator, so one measurement gives both.
+    "best passive" run the same estimator, so one measurement gives both. ``progress``: a bar over
+    the conditions.
 
     Returns
     -------
@@ -428,7 +429,12 @@ def pipeline_costs(results, repeats: int | None = None, every: int = 1) -> pd.Da
             runs.setdefault(c.pointing.mode, r)
     order = {name: i for i, name in enumerate(("sphere", "aruco") + DISTORTIONS + TRAJECTORIES)}
     rows = []
-    for key in sorted(first, key=lambda k: [order[x] for x in k]):
+    keys = sorted(first, key=lambda k: [order[x] for x in k])
+    if progress:
+        from tqdm.auto import tqdm
+
+        keys = tqdm(keys, desc="CPU cost per frame", unit="condition", dynamic_ncols=True)
+    for key in keys:
         runs = [first[key][m] for m in MODES if m in first[key]]
         c = runs[0].config
         renderer = make_renderer(c)
@@ -766,7 +772,8 @@ def make_report(results, study: PaperStudy, costs: pd.DataFrame | None = None, s
     pipelines = pipeline_table(results)
     if costs is None:
         costs = _report.measured_once(store, study_results, f"CPU time per frame of the paper's pipelines (least of "
-                                      f"{COST_REPEATS} passes)", lambda: pipeline_costs(study_results), progress)
+                                      f"{COST_REPEATS} passes)", lambda: pipeline_costs(study_results, progress=progress),
+                                      progress)
     pipelines_summary = pipeline_summary(pipelines, costs) if len(pipelines) else pd.DataFrame()
     verdicts = check_claims(replicates, pipelines)
     figures = [("fig10_trajectories", lambda: plotting.study.plot_trajectories(study.period_s))]

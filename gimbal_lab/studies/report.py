@@ -157,6 +157,8 @@ def write(folder, report: Report, progress: bool = False) -> list[Path]:
         bar = tqdm(total=len(figures), desc=f"{report.study} figures", unit="figure", dynamic_ncols=True)
     try:
         for name, draw in figures:
+            if bar is not None:
+                bar.set_postfix_str(name)
             drawn = draw()
             fig = drawn if isinstance(drawn, plt.Figure) else drawn.figure
             written += _save_figure(fig, name, folder / "figures", report.formats)
@@ -272,6 +274,7 @@ def run_and_report(name: str, desc: str, configs, make_report, study, out, *, st
 
     folder = ReportFolder(Path(out) / name, "the report folder")
     folder.check()  # before the runs
+    say(f"{name}: reading the stored runs, computing the others ...", progress)
     results = run(configs, store=store, executor=executor, jobs=jobs, progress=progress, desc=desc)
     say(f"{name}: tables and verdicts of {len(results)} runs ...", progress)
     report = make_report(results, study)
