@@ -990,3 +990,73 @@ def test_reachable_joint_angle_by_hand():
     # a joint with more than a turn of range: the turn nearest the joint now
     assert reach(D(10), D(300), D(-400), D(400)) == (pytest.approx(D(370)), True)
     assert reach(D(10), D(-300), -math.inf, math.inf) == (pytest.approx(D(-350)), True)
+
+
+# ---------------------------------------------------------------------------------- the vehicle's attitude
+def _autopilot_state(device, heading_deg, rate_rad_s=math.nan, *, feed_forward_rad_s=math.nan, delay_us=0, q=None):
+    """AUTOPILOT_STATE_FOR_GIMBAL_DEVICE of a level vehicle heading ``heading_deg`` (right of North),
+    as received off the wire."""
+    sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    q = [math.cos(D(heading_deg) / 2), 0.0, 0.0, math.sin(D(heading_deg) / 2)] if q is None else q
+    packet = sender.autopilot_state_for_gimbal_device_encode(
+        1, 154, 0, q, delay_us, 0.0, 0.0, 0.0, 0, feed_forward_rad_s, 0, 0, rate_rad_s).pack(sender)
+    (msg,) = mavlink.MAVLink(None).parse_buffer(packet)
+    device.handle(msg)
+
+
+@pytest.mark.parametrize("frame, joint_yaw_deg, earth_yaw_deg", [("earth", -50.0, 20.0), ("vehicle", -20.0, -10.0)])
+def test_yaw_lock_holds_the_heading_and_follow_turns_with_the_vehicle(frame, joint_yaw_deg, earth_yaw_deg):
+    """Yaw 20° right, pitch −10°; the autopilot reports the vehicle turning from North to −30° (at
+    −60°/s, a state every 20 ms). Yaw lock (earth frame) holds the camera's heading at 20°: the yaw
+    joint ends at −(20 − (−30)) = −50°. Follow (vehicle frame) keeps the joint at −20°: the heading
+    turns with the vehicle to −10°. Reports: delta_yaw = −30°, earth yaw = reported yaw + delta_yaw."""
+    device, link = _in_process_device(3.0)
+    _autopilot_state(device, 0.0, 0.0)
+    _command_attitude(device, 20.0, -10.0, frame=frame)
+    _run(device, 1.0)
+    assert abs(device.q_rad[0] - D(-20)) < 1e-5
+    for i in range(1, 26):
+        _autopilot_state(device, -30.0 * i / 25, D(-60) if i < 25 else 0.0)
+        path = _run(device, 0.02)
+        # the heading at the interval's end, carried forward with the rate: the joint tracks it
+        # without lag (after the first state's 1.2° step has decayed at k = 20 /s) or holds still
+        heading_deg = -30.0 * min(i + 1, 25) / 25
+        ideal = D(heading_deg - 20.0) if frame == "earth" else D(-20.0)
+        assert i < 15 or abs(path[-1] - ideal) < 1e-3, (i, np.degrees(path[-1]))
+        assert frame == "earth" or np.abs(path - ideal).max() < 1e-6
+    _run(device, 1.0)
+    assert np.abs(device.q_rad - (D(joint_yaw_deg), 0.0, D(-10))).max() < 1e-5
+    status = link.statuses[-1]
+    yaw, pitch, _ = frames.euler_from_quaternion(status.q)
+    assert abs(status.delta_yaw - D(-30)) < 1e-6 and abs(pitch - D(-10)) < 1e-5
+    assert abs(yaw + status.delta_yaw - D(earth_yaw_deg)) < 1e-5
+    assert device.autopilot_states_taken == 26
+
+
+def test_an_attitude_and_an_angular_velocity_sent_together():
+    """One AUTOPILOT_STATE_FOR_GIMBAL_DEVICE at t = 1 s: heading 10°, angular_velocity_z 0.5 rad/s,
+    q_estimated_delay_us 20 ms. By hand the heading is 10° + 0.5·(t − 0.98 s) until 0.5 s after
+    the sample (t = 1.48 s), then holds at 10° + 0.25 rad; delta_yaw_velocity is 0.5 then 0.
+    With angular_velocity_z NaN the feed-forward rate is taken; a NaN attitude, a non-rotation or
+    an infinite rate is refused."""
+    from gimbal_lab.mavlink.device import AUTOPILOT_HORIZON_S
+
+    device, link = _in_process_device(2.0)
+    _run(device, 1.0)
+    _autopilot_state(device, 10.0, 0.5, delay_us=20_000)
+    start = len(link.statuses)
+    _run(device, 0.8)
+    checked = 0
+    for status in link.statuses[start:]:
+        t = status.time_boot_ms / 1000.0
+        age = min(t - 0.98, AUTOPILOT_HORIZON_S)
+        assert abs(status.delta_yaw - (D(10) + 0.5 * age)) < 1e-6, t
+        assert status.delta_yaw_velocity == (0.5 if t - 0.98 < AUTOPILOT_HORIZON_S else 0.0)
+        checked += 1
+    assert checked == 80
+    _autopilot_state(device, -5.0, feed_forward_rad_s=-0.3)
+    _run(device, 0.1)
+    assert abs(link.statuses[-1].delta_yaw - (D(-5) - 0.3 * 0.1)) < 1e-6
+    for bad in (dict(q=[math.nan] * 4), dict(q=[3.0, 0.0, 0.0, 0.0]), dict(rate_rad_s=math.inf)):
+        _autopilot_state(device, 0.0, **bad)
+    assert (device.autopilot_states_taken, device.autopilot_states_rejected) == (2, 3)

@@ -27,7 +27,7 @@ LIVENESS_S = 30.0  # generous bound for an answer that must merely arrive
 SYSTEM, COMPONENT = 1, mavlink.MAV_COMP_ID_GIMBAL
 #: Messages the device reads.
 READ = ("GIMBAL_DEVICE_SET_ATTITUDE", "COMMAND_LONG", "COMMAND_INT", "GIMBAL_MANAGER_SET_ATTITUDE",
-        "GIMBAL_MANAGER_SET_PITCHYAW")
+        "GIMBAL_MANAGER_SET_PITCHYAW", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE")
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 3.4e38, -3.4e38, 1e-45, -0.0, 1e9)
 INT_RANGES = {"uint8_t": (0, 255), "int8_t": (-128, 127), "uint16_t": (0, 65535), "int16_t": (-32768, 32767),
               "uint32_t": (0, 2**32 - 1), "int32_t": (-2**31, 2**31 - 1), "uint64_t": (0, 2**64 - 1),
@@ -125,8 +125,8 @@ def hostile_message(name, rng, *, addressed=True):
             if kind == "char":
                 return bytes(rng.integers(0, 256, 1, dtype=np.uint8))
             lo, hi = INT_RANGES[kind]
-            return int(rng.choice([lo, hi, 0, int(rng.integers(lo, hi, endpoint=True, dtype=np.int64))
-                                   if hi < 2**63 else hi]))
+            picks = [lo, hi, 0, int(rng.integers(lo, hi, endpoint=True, dtype=np.int64)) if hi < 2**63 else hi // 3]
+            return picks[int(rng.integers(len(picks)))]  # an index: numpy would turn 2**64 - 1 into a float
         values.append([one() for _ in range(n)] if n else one())
     msg = cls(*values)
     if addressed and hasattr(msg, "target_system"):

@@ -29,7 +29,26 @@ built by :func:`simulated_gimbal`, and speaks MAVLink 2 on a link:
   - NEUTRAL or RETRACT: the attitude (1, 0, 0, 0) in the vehicle frame; everything NaN: only the
     flags change. Roll and pitch are always held relative to the horizon (no roll/pitch follow);
 * GIMBAL_DEVICE_ATTITUDE_STATUS every 1/``status_rate_hz`` s of simulated time (the first one
-  period after the start), in the vehicle frame with ``delta_yaw`` = the body's heading.
+  period after the start), in the vehicle frame with ``delta_yaw`` = the body's heading;
+* AUTOPILOT_STATE_FOR_GIMBAL_DEVICE: the vehicle's attitude and heading rate, which from then on
+  are the body the device knows (below);
+* a gimbal manager on the same component (:mod:`gimbal_lab.mavlink.manager`; ``manager=False``
+  leaves it out).
+
+The vehicle's attitude
+----------------------
+Until an AUTOPILOT_STATE_FOR_GIMBAL_DEVICE arrives the body is the simulated one. From the first,
+the vehicle frame, the earth-frame conversions (yaw lock) and the reports' ``delta_yaw`` use the
+autopilot's attitude ``q`` (NED earth to FRD body). **An attitude and an angular velocity sent
+together** are read as one sample: ``q`` is the vehicle's attitude ``q_estimated_delay_us``
+before the message arrived, and the heading then moves on from it at ``angular_velocity_z`` (the
+earth-frame z rate, rad/s, positive right; when NaN, ``feed_forward_angular_velocity_z``; when both
+are NaN, 0) for at most :data:`AUTOPILOT_HORIZON_S` after the sample, then holds; roll and pitch
+hold at the sample's. The rate is also the vehicle frame's turn rate in the reports and the
+commands. A message with ``q`` NaN (unknown), a ``q`` that is no rotation or an infinite rate is
+refused and counted. The simulated mount itself stays on its own body: its axes do not feel the
+autopilot's motion (the device moves the joints as a real one would, to hold the earth heading in
+yaw lock or to turn with the vehicle in follow).
 
 Time
 ----
@@ -74,7 +93,7 @@ from .signing import enable_signing, refused_count
 
 __all__ = ["LinkEffects", "SimulatedGimbalDevice", "simulated_gimbal", "DEFAULT_MAX_RATE_RAD_S",
            "firmware_version_word", "MAX_CLIENTS", "MAX_PENDING_COMMANDS", "MAX_COMMAND_RATE_RAD_S",
-           "MAX_STATUS_RATE_HZ", "MAX_LATENCY_S"]
+           "MAX_STATUS_RATE_HZ", "MAX_LATENCY_S", "AUTOPILOT_HORIZON_S", "reachable_joint_angle"]
 
 #: The device's joint-rate limit, rad/s (the lab's image loop limits its rates to the same).
 DEFAULT_MAX_RATE_RAD_S = 3.0
@@ -87,6 +106,9 @@ MAX_PENDING_COMMANDS = 4096
 MAX_STATUS_RATE_HZ = 1000.0
 #: The longest one-way latency, s (a geostationary satellite hop is about 0.25 s).
 MAX_LATENCY_S = 10.0
+#: How long the heading from AUTOPILOT_STATE_FOR_GIMBAL_DEVICE is carried forward with its rate, s
+#: (autopilots send it at 10 Hz or more); later the heading holds.
+AUTOPILOT_HORIZON_S = 0.5
 _HEARTBEAT_PERIOD_S = 1.0
 _REALTIME_POLL_S = 0.002
 _LOCKSTEP_POLL_S = 0.05
@@ -274,6 +296,9 @@ class SimulatedGimbalDevice:
     packets_dropped : int
         Received bytes that were no packet: bad framing or checksum, a packet torn at the end of a
         datagram, or (with a key) a packet refused for its signature.
+    autopilot_states_taken, autopilot_states_rejected : int
+        AUTOPILOT_STATE_FOR_GIMBAL_DEVICE messages taken / refused at the wire (attitude unknown or
+        not a rotation, an infinite rate or one beyond :data:`MAX_COMMAND_RATE_RAD_S`).
     handler_errors : int
         Packets whose handling failed unexpectedly (each dropped; the device carries on). Zero
         unless the device has a bug: the fuzz tests check it stays so.
@@ -346,6 +371,8 @@ class SimulatedGimbalDevice:
         self.commands_applied = self.commands_rejected = 0
         self.packets_dropped = self.handler_errors = 0
         self._euler_rates = None  # (pitch rate, yaw rate) of a manager's rate setpoint, rad/s
+        self._autopilot = None  # (R_vehicle_body, ψ, ψ̇, step of the sample) from AUTOPILOT_STATE_FOR_GIMBAL_DEVICE
+        self.autopilot_states_taken = self.autopilot_states_rejected = 0
         self.manager = GimbalManager(self) if manager else None
         self._next_heartbeat_wall = 0.0
         self._stepping = None  # lock-step: (first step, last step, next progress wall time) while a step runs
@@ -387,7 +414,7 @@ class SimulatedGimbalDevice:
 
     def attitude_in(self, frame: str) -> np.ndarray:
         """The gimbal's attitude now (the simulation's truth) in the "vehicle" or "earth" frame, 3x3."""
-        R_vb, psi, _ = self._body_state()
+        R_vb, psi, _ = self._vehicle_state()
         R_vehicle = frames.gimbal_attitude_matrix(self.kinematics, self.mount.q, R_vb)
         return frames.rot_z(psi) @ R_vehicle if frame == "earth" else R_vehicle
 
@@ -455,6 +482,37 @@ class SimulatedGimbalDevice:
             self._body_cache = state
         return state
 
+    def _vehicle_state(self):
+        """(R_vehicle_body, heading ψ, heading rate ψ̇) as the device knows them: from the last
+        AUTOPILOT_STATE_FOR_GIMBAL_DEVICE when one has been taken (module docstring), else its own
+        simulated body's (:meth:`_body_state`)."""
+        state = self._autopilot
+        if state is None:
+            return self._body_state()
+        R_vb, psi, psi_rate, k_sample = state
+        age_s = max(self._k - k_sample, 0) * self.dt_s
+        if age_s >= AUTOPILOT_HORIZON_S:
+            return R_vb, psi + psi_rate * AUTOPILOT_HORIZON_S, 0.0
+        return R_vb, psi + psi_rate * age_s, psi_rate
+
+    def _take_autopilot_state(self, msg) -> None:
+        """AUTOPILOT_STATE_FOR_GIMBAL_DEVICE, checked at the wire (module docstring)."""
+        q = np.array(msg.q, dtype=float)
+        if np.all(np.isnan(q)):  # the attitude is unknown: nothing to take
+            self.autopilot_states_rejected += 1
+            return
+        rates = [float(msg.angular_velocity_z), float(msg.feed_forward_angular_velocity_z)]
+        if (not np.all(np.isfinite(q)) or not 0.5 < float(np.linalg.norm(q)) < 2.0
+                or any(math.isinf(r) or abs(r) > MAX_COMMAND_RATE_RAD_S for r in rates)):
+            self.autopilot_states_rejected += 1
+            return
+        R_nb = frames.matrix_from_quaternion(q / np.linalg.norm(q))
+        psi = math.atan2(R_nb[1, 0], R_nb[0, 0])
+        psi_rate = next((r for r in rates if math.isfinite(r)), 0.0)
+        delay_steps = int(round(min(msg.q_estimated_delay_us * 1e-6, AUTOPILOT_HORIZON_S) / self.dt_s))
+        self._autopilot = (frames.rot_z(psi).T @ R_nb, psi, psi_rate, self._k - delay_steps)
+        self.autopilot_states_taken += 1
+
     # ------------------------------------------------------------------ commands
     def _apply(self, msg) -> None:
         frame = frame_of_flags(msg.flags)
@@ -480,7 +538,7 @@ class SimulatedGimbalDevice:
             return
         # the commanded attitude carried into the new frame (commanded-only reports)
         if frame != self._frame:
-            _, psi, _ = self._body_state()
+            _, psi, _ = self._vehicle_state()
             turn = frames.rot_z(psi) if frame == "earth" else frames.rot_z(psi).T
             self._R_cmd = turn @ self._R_cmd
         self._mode, self._frame, self._omega_cmd, self._cmd_flags = mode, frame, omega_cmd, int(msg.flags)
@@ -501,7 +559,7 @@ class SimulatedGimbalDevice:
     def _reference(self) -> np.ndarray:
         """The axes' rate references w (inertial, joint basis), rad/s, for the setpoint now."""
         q = self.mount.q
-        R_vb, psi, psi_rate = self._body_state()
+        R_vb, psi, psi_rate = self._vehicle_state()
         Rz = frames.rot_z(psi)
         flags = 0
         w = np.zeros(3)
@@ -517,6 +575,8 @@ class SimulatedGimbalDevice:
             self._omega_cmd = angular_velocity_of_pitch_yaw_rates(self.yaw_in(self._frame), *self._euler_rates)
         # the commanded (feed-forward) rate, relative to its frame → inertial, in vehicle axes
         omega = self._omega_cmd + psi_rate * _Z if self._frame == "vehicle" else Rz.T @ self._omega_cmd
+        if self._autopilot is not None:  # the simulated base turns at its own rate, not at the autopilot's
+            omega = omega - (psi_rate - self._body_state()[2]) * _Z
         try:
             w = w + frames.angular_velocity_to_joint_rates(self.kinematics, q, omega, R_vb)
         except ValueError:  # at the roll ±90° singularity: hold
@@ -560,7 +620,8 @@ class SimulatedGimbalDevice:
 
     def _sample_status(self) -> None:
         q = self.mount.q
-        R_vb, psi, psi_rate = self._body_state()
+        R_vb, psi, psi_rate = self._vehicle_state()
+        base_rate = psi_rate if self._autopilot is None else self._body_state()[2]
         if self.effects.commanded_only:
             self._integrate_command()  # the commanded attitude now, not at the last control step
             R_vehicle = self._R_cmd if self._frame == "vehicle" else frames.rot_z(psi).T @ self._R_cmd
@@ -570,7 +631,7 @@ class SimulatedGimbalDevice:
                 omega = np.full(3, np.nan)
         else:
             R_vehicle = frames.gimbal_attitude_matrix(self.kinematics, q, R_vb)
-            omega = frames.joint_rates_to_angular_velocity(self.kinematics, q, self.mount.axis_rates, R_vb) - psi_rate * _Z
+            omega = frames.joint_rates_to_angular_velocity(self.kinematics, q, self.mount.axis_rates, R_vb) - base_rate * _Z
         quat = frames.quaternion_from_matrix(R_vehicle)
         quantum = self.effects.quantum_rad
         if quantum > 0:
@@ -644,6 +705,8 @@ class SimulatedGimbalDevice:
             return
         if kind == "GIMBAL_DEVICE_SET_ATTITUDE":
             self.queue_setpoint(msg)
+        elif kind == "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE":
+            self._take_autopilot_state(msg)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(msg)
         elif kind in ("GIMBAL_MANAGER_SET_ATTITUDE", "GIMBAL_MANAGER_SET_PITCHYAW") and self.manager is not None:
