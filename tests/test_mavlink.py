@@ -1060,3 +1060,32 @@ def test_an_attitude_and_an_angular_velocity_sent_together():
     for bad in (dict(q=[math.nan] * 4), dict(q=[3.0, 0.0, 0.0, 0.0]), dict(rate_rad_s=math.inf)):
         _autopilot_state(device, 0.0, **bad)
     assert (device.autopilot_states_taken, device.autopilot_states_rejected) == (2, 3)
+
+
+def test_device_command_with_a_signing_key(tmp_path):
+    """`gimbal-device --signing-key-file`: a key file of the wrong form is refused in one line
+    (exit 2); with a good one the device refuses an unsigned request, answers a signed one and
+    counts the refusal in its closing line (Ctrl-C, 130)."""
+    bad = tmp_path / "bad.key"
+    bad.write_text("g" * 64)
+    done = subprocess.run(cli("--signing-key-file", str(bad)), capture_output=True, text=True, timeout=LIVENESS_S)
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        f"gimbal-lab gimbal-device: error: --signing-key-file: signing key file {bad} must hold 32 raw bytes or 64 "
+        "hexadecimal characters, got 64 bytes"]
+    key = bytes(range(7, 39))
+    (tmp_path / "good.key").write_text(key.hex())
+    port = free_udp_port()
+    proc = subprocess.Popen(cli("--listen", f"udpin:127.0.0.1:{port}", "--lockstep", "--signing-key-file",
+                                str(tmp_path / "good.key")), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert ", signed" in wait_for_line(proc, "Ctrl-C stops")
+        with sniffer() as sock:
+            for sender in (mavlink.MAVLink(None, srcSystem=1, srcComponent=191), _stock_signer(key)):
+                sock.sendto(sender.command_long_encode(1, 154, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 283, 0, 0, 0, 0,
+                                                       0, 0).pack(sender), ("127.0.0.1", port))
+            info, _ = sniff(sock, "GIMBAL_DEVICE_INFORMATION")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=LIVENESS_S)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "1 packets dropped (1 refused for their signature)" in out, (out, err)

@@ -154,8 +154,11 @@ def _gimbal_device_command(args, parser) -> int:
         reason = device.run()
     except KeyboardInterrupt:
         t = f" at {device.t_s:.3f} s simulated" if device is not None else ""
-        print(f"gimbal-device: interrupted{t}; "
-              f"{device.statuses_sent if device is not None else 0} statuses sent", flush=True)
+        counts = "0 statuses sent"
+        if device is not None:
+            counts = (f"{device.statuses_sent} statuses sent, {device.packets_dropped} packets dropped "
+                      f"({device.packets_refused} refused for their signature)")
+        print(f"gimbal-device: interrupted{t}; {counts}", flush=True)
         return 130
     finally:
         link.close()
