@@ -26,8 +26,8 @@ def _add_run_options(p) -> None:
     p.add_argument("--config", metavar="TOML", help="study parameters (e.g. data/studies/paper.toml, data/studies/moving-drone.toml)")
     p.add_argument("--replicates", type=positive_int, metavar="N", help="replicates per cell (overrides --config)")
     p.add_argument("--points", type=int_at_least(PAYOFF_MIN_POINTS), metavar="N",
-                   help=f"points of the payoff map's Latin hypercube, >= {PAYOFF_MIN_POINTS} (payoff only; overrides "
-                        "--config)")
+                   help=f"points of a map's Latin hypercube, >= {PAYOFF_MIN_POINTS} (the payoff and light maps only; "
+                        "overrides --config)")
     p.add_argument("--jobs", type=positive_int, metavar="N", help="local worker processes (default: every CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://HOST:8786 (needs the [dask] extra)")
@@ -94,7 +94,7 @@ def _run(args, parser) -> int:
             params = module.Study(**{**params.to_dict(), "replicates": args.replicates})
         if getattr(args, "points", None) is not None:
             if "points" not in params.to_dict():
-                raise ValueError(f"--points sets the payoff map's points; {args.study} has none")
+                raise ValueError(f"--points sets a map's points (payoff, light); {args.study} has none")
             params = module.Study(**{**params.to_dict(), "points": args.points})
     except (ValueError, TypeError, FileNotFoundError) as exc:
         parser.error(str(exc))
