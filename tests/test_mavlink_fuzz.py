@@ -7,7 +7,7 @@ checks after every batch that the device still answers a request, that its joint
 their limits, and that no handling failed (``handler_errors == 0``). Packets are built with
 pymavlink's own encoder (the oracle of the wire format); every draw is seeded.
 
-Cost: about 1,300 datagrams and 40 lock-step steps of 10 ms, a few seconds of CPU.
+Cost: about 2,400 datagrams and 40 lock-step steps of 10 ms, a few seconds of CPU.
 """
 
 import math
