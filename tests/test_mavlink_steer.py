@@ -62,6 +62,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+class Sent(list):
+    """The GIMBAL_DEVICE_SET_ATTITUDE messages the device was sent, in order; ``to_manager``: the
+    GIMBAL_MANAGER_SET_PITCHYAW ones."""
+
+    def __init__(self):
+        super().__init__()
+        self.to_manager = []
+
+
 @contextmanager
 def device_process(*extra):
     """``gimbal-lab gimbal-device`` in real time as its own process (its own interpreter: a thread
@@ -78,7 +87,7 @@ def device_process(*extra):
     front.bind(("127.0.0.1", 0))
     back = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     back.bind(("127.0.0.1", 0))
-    sent, stop = [], threading.Event()
+    sent, stop = Sent(), threading.Event()
     parser = mavlink.MAVLink(None)
 
     def relay():
@@ -97,6 +106,8 @@ def device_process(*extra):
                     for msg in parser.parse_buffer(data) or ():
                         if msg.get_type() == "GIMBAL_DEVICE_SET_ATTITUDE":
                             sent.append(msg)
+                        elif msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
+                            sent.to_manager.append(msg)
                     back.sendto(data, ("127.0.0.1", port))
                 elif driver is not None:
                     with contextlib.suppress(OSError):
@@ -533,3 +544,31 @@ def test_track_gimbal_stops_on_a_nan_attitude_with_exit_1_and_a_failed_rerun_kee
     assert exit_.value.code == 2 and "calibrate this camera at this resolution" in capsys.readouterr().err
     assert {name: (out / name).read_bytes() for name in before} == before
     assert sorted(p.name for p in out.iterdir()) == ["gimbal.csv", "track.csv"]
+
+
+def test_track_via_the_devices_own_manager_turns_the_gimbal_towards_the_target(tmp_path, video):
+    """``--via-manager`` against the lab's device and its built-in manager (its own process): the
+    driver takes control of manager 1/154, every frame's command goes out as
+    GIMBAL_MANAGER_SET_PITCHYAW rates towards the ball (yaw right, pitch down), none as a device
+    command, closing sends zero rates; the device's reported attitude turns right and down."""
+    with device_process() as (_, address, sent):
+        lines = []
+        steer = GimbalSteer(address, CAM, None, tmp_path, timeout_s=2.0, discover_timeout_s=LIVENESS_S,
+                            max_age_s=2.0, via_manager=True, say=lines.append)
+        try:
+            rw.track(video, tmp_path, "sphere", rw.Calibration(CAM, None), max_frames=15, progress=False,
+                     video=False, gimbal=steer)
+        finally:
+            steer.close()
+        time.sleep(0.2)  # the last datagram is on its way over loopback
+        assert steer.failure is None and steer.stopped
+        assert lines[-1] == "gimbal manager 1/154 found; this driver is its primary control"
+        assert not sent and len(sent.to_manager) == 16
+        *steering, last = sent.to_manager
+        assert all(m.yaw_rate > 0 and m.pitch_rate < 0 and math.isnan(m.yaw) and math.isnan(m.pitch)
+                   for m in steering)
+        assert (last.yaw_rate, last.pitch_rate) == (0.0, 0.0)
+    log = pd.read_csv(tmp_path / "gimbal.csv")
+    first, final = (frames.euler_from_quaternion(log[["report_qw", "report_qx", "report_qy", "report_qz"]].iloc[k])
+                    for k in (0, -1))
+    assert final[0] > first[0] + 0.01 and final[1] < first[1] - 0.01, (first, final)  # yaw right, pitch down (rad)
