@@ -1173,6 +1173,10 @@ _LAWS = {
 _MAX_STATUS_RATE_HZ = 1000.0
 
 
+#: How the loop uses a gimbal's latest status (:class:`GimbalLink`).
+_LINK_ATTITUDES = ("as-is", "propagated")
+
+
 @dataclass(frozen=True)
 class GimbalLink(_Part):
     """The gimbal behind a MAVLink link (docs/design.md, "The link"): what the loop learns of the
@@ -1197,6 +1201,11 @@ class GimbalLink(_Part):
     commanded_only : bool
         The gimbal reports the commanded attitude (the integral of the rates sent) instead of
         the measured one: a gimbal without angle feedback.
+    attitude : {"as-is", "propagated"}
+        How the loop uses the latest status: "as-is" (the default), its joints as reported;
+        "propagated", its joints carried forward to the instant they are used by the status's own
+        angular velocity times its age, q + A(q)⁻¹·ω·(t − t_status), or by the rates last commanded
+        when the status reports none (:meth:`gimbal_lab.mavlink.loop.LinkedGimbal.joints`).
 
     Notes
     -----
@@ -1208,8 +1217,14 @@ class GimbalLink(_Part):
     quantum_rad: float = 0.0
     loss: float = 0.0
     commanded_only: bool = False
+    attitude: str = "as-is"
 
     _NAME = "pointing.link"
+
+    def _encode(self, name, value):
+        if name == "attitude" and value == "as-is":
+            return None  # the default, left out so that the links of before the field keep their keys
+        return _plain(value)
 
     def __post_init__(self):
         self._number("status_rate_hz", low=0.0, high=_MAX_STATUS_RATE_HZ, low_open=True)
@@ -1219,6 +1234,7 @@ class GimbalLink(_Part):
         if not isinstance(self.commanded_only, (bool, np.bool_)):
             raise TypeError(f"pointing.link.commanded_only must be True or False, got {self.commanded_only!r}")
         self._set("commanded_only", bool(self.commanded_only))
+        self._choice("attitude", _LINK_ATTITUDES)
 
     @staticmethod
     def effects_seed(seed: int) -> int:
@@ -1230,7 +1246,8 @@ class GimbalLink(_Part):
         """A short name: "50 Hz, 20 ms, 0.1°, 5 % loss" (and "commanded only")."""
         parts = [f"{self.status_rate_hz:g} Hz", f"{1000 * self.latency_s:g} ms", f"{math.degrees(self.quantum_rad):g}°",
                  f"{100 * self.loss:g} % loss"]
-        return ", ".join(parts) + (", commanded only" if self.commanded_only else "")
+        return (", ".join(parts) + (", commanded only" if self.commanded_only else "")
+                + (", propagated" if self.attitude == "propagated" else ""))
 
 
 @dataclass(frozen=True)

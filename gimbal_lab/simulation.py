@@ -113,7 +113,9 @@ FRAME_COLUMNS = {
     "known_q_yaw_rad, known_q_roll_rad, known_q_pitch_rad": "the joint angles the loop took for the frame: the "
                                                             "truth in-process; behind a link, those of the latest "
                                                             "attitude status received when the exposure starts (the "
-                                                            "home pose before the first); est_* use them",
+                                                            "home pose before the first), carried to the truth "
+                                                            "instant by its rates with pointing.link.attitude "
+                                                            "'propagated'; est_* use them",
     "known_age_s": "truth instant minus the instant the known joints were sampled, s (0 in-process)",
     "cmd_yaw_rad_s, cmd_roll_rad_s, cmd_pitch_rad_s": "the joint-rate reference the outer loop gave after the "
                                                       "frame, rad/s (held until the next frame's)",

@@ -203,3 +203,49 @@ def test_connect_gives_the_in_process_gimbal_without_a_link():
     config = cell("sphere", revolutions=0.1)
     mount = config.gimbal.mount(config.body, "active", 100, 0)
     assert isinstance(connect(config, mount), DirectGimbal)
+
+
+def test_a_propagated_status_is_carried_forward_by_its_own_rates():
+    """By hand: a status at joints q with angular velocity ω = A(q)·q̇ (the device's report of joint
+    rates q̇), used `age` later, gives q + q̇·age with attitude "propagated" (A⁻¹ of A·q̇ returns q̇
+    to 1e-12), as reported with "as-is" or for a status from after the instant, and the rates
+    last commanded when it reports no angular velocity."""
+    from types import SimpleNamespace
+
+    from gimbal_lab.mavlink.frames import joint_rates_to_angular_velocity
+    from gimbal_lab.mavlink.loop import LinkedGimbal
+
+    kin = PaperStudy().config("sphere", "distorted", "circular", "active", 0).gimbal.kinematics
+    q, qdot = np.array([0.3, 0.02, -0.2]), np.array([1.1, -0.05, 0.4])
+    omega = joint_rates_to_angular_velocity(kin, q, qdot)
+    report = SimpleNamespace(q_rad=q, angular_velocity_rad_s=omega, frame="vehicle", time_s=2.0)
+    gimbal = object.__new__(LinkedGimbal)  # the loop's side alone: no device, no driver
+    gimbal.kinematics, gimbal._home, gimbal._report = kin, np.zeros(3), report
+    gimbal._commanded = np.array([-0.7, 0.0, 0.9])
+    for propagate, t, expected in ((True, 2.05, q + 0.05 * qdot), (True, 1.99, q), (False, 2.05, q)):
+        gimbal._propagate = propagate
+        np.testing.assert_allclose(gimbal._known(t), expected, rtol=0, atol=1e-12)
+    gimbal._propagate = True
+    gimbal._report = SimpleNamespace(q_rad=q, angular_velocity_rad_s=np.full(3, np.nan), frame="vehicle", time_s=2.0)
+    np.testing.assert_allclose(gimbal._known(2.1), q + 0.1 * gimbal._commanded, rtol=0, atol=1e-12)
+    gimbal._report = None
+    np.testing.assert_array_equal(gimbal._known(2.1), np.zeros(3))  # home before the first status
+
+
+@pytest.mark.parametrize("feedback", ["measured", "commanded only"])
+def test_a_propagated_link_knows_the_joints_far_better_at_10_hz(feedback, renderers):
+    """The loop's known joints at each frame's truth instant against the true joints there, through
+    a 10 Hz link (statuses 0-100 ms old while the gimbal turns at up to 1 rad/s): propagating the
+    status by its reported rates at least halves the error of using it as it is (measured: 38.0 →
+    8.5 mrad with angle feedback; 44.3 → 16.2 mrad commanded only, whose reports also carry the
+    commanded attitude's own gap to the axes, which no propagation removes). What is left is the
+    loop's change of command within a status's age: the reported rate is the one of its instant."""
+    errors = {}
+    for attitude in ("as-is", "propagated"):
+        link = GimbalLink(status_rate_hz=10.0, commanded_only=feedback == "commanded only", attitude=attitude)
+        config = cell("sphere", revolutions=1.0).with_(pointing__link=link)
+        f = simulate(config, renderers(config)).frames
+        f = f[np.isfinite(f["known_age_s"])]
+        errors[attitude] = float(np.abs(f[KNOWN].to_numpy() - f[JOINTS].to_numpy()).max(axis=1).mean())
+    assert errors["as-is"] > 0.01  # the stale status is tens of milliradians off while the gimbal turns
+    assert errors["propagated"] < 0.5 * errors["as-is"], errors

@@ -16,6 +16,9 @@ What the loop knows and does (docs/design.md, "The link"):
   the link makes them; before the first status, the home pose (where the gimbal starts);
 * **the frame's pose**: the camera pose of those joints on the body (whose pose the loop knows):
   the detection goes to the world through it, the truth through the mount's own pose;
+* with ``pointing.link.attitude = "propagated"``, both carried from the status's time stamp to the
+  instant they are used by the status's angular velocity (the rates last commanded when it has
+  none): q + A(q)⁻¹·ω·age;
 * **commands**: the outer loop's joint rates, sent once per frame as the angular velocity they
   give at the known joints (GIMBAL_DEVICE_SET_ATTITUDE, vehicle frame); the device maps them
   back to joint references on arrival and holds them until the next command (its
@@ -39,6 +42,7 @@ import numpy as np
 from ..mount import camera_pose
 from .device import LinkEffects, SimulatedGimbalDevice
 from .driver import MavlinkGimbal
+from .frames import angular_velocity_to_joint_rates
 
 __all__ = ["LinkedGimbal", "link_effects", "equality_bound", "F32_ANGLE_RAD"]
 
@@ -131,6 +135,8 @@ class LinkedGimbal:
             raise
         self._report = None
         self._home = np.zeros(3)
+        self._propagate = config.pointing.link.attitude == "propagated"
+        self._commanded = np.zeros(3)  # the joint rates last sent, rad/s
 
     def _serve(self) -> None:
         try:
@@ -139,24 +145,51 @@ class LinkedGimbal:
             self._errors.append(exc)
 
     # ------------------------------------------------------------------ the loop's four calls
+    def joint_rates(self, report) -> np.ndarray:
+        """The joint rates a status implies, rad/s: its angular velocity (vehicle frame) through the
+        gimbal's rates matrix at its joints, A(q)⁻¹·ω; the rates last commanded when it reports no
+        angular velocity (NaN), is in the earth frame, or sits at the roll singularity."""
+        omega = report.angular_velocity_rad_s
+        if report.frame == "vehicle" and np.all(np.isfinite(omega)):
+            try:
+                return angular_velocity_to_joint_rates(self.kinematics, report.q_rad, omega)
+            except ValueError:
+                pass
+        return self._commanded.copy()
+
+    def _known(self, t_s: float) -> np.ndarray:
+        """The joints the loop takes for the instant ``t_s``: the latest status's (home before the
+        first); with ``attitude="propagated"`` carried forward to ``t_s`` by its joint rates times
+        its age (never backward: a status from after ``t_s`` is used as it is)."""
+        if self._report is None:
+            return self._home.copy()
+        q = self._report.q_rad.copy()
+        age = t_s - self._report.time_s
+        if self._propagate and age > 0:
+            q = q + self.joint_rates(self._report) * age
+        return q
+
     def joints(self, t_s: float) -> np.ndarray:
         """The joints of the latest status received when the frame at ``t_s`` starts (home before the
-        first), rad; kept as the frame's knowledge for :meth:`frame_pose`."""
+        first; propagated to ``t_s`` when the link says so), rad; the status is kept as the frame's
+        knowledge for :meth:`frame_pose`."""
         report = self.driver.latest()
         self._report = report if report is not None and np.all(np.isfinite(report.q_rad)) else None
-        return self._home.copy() if self._report is None else self._report.q_rad.copy()
+        return self._known(t_s)
 
     def frame_pose(self, t_s: float, q_truth, T_world_cam_truth):
         """``(q, T_world_cam, age_s)`` the loop maps the frame's detection with: the known joints on the
-        body at the truth instant ``t_s``, and their age then (NaN before the first status)."""
-        q = self._home if self._report is None else self._report.q_rad
+        body at the truth instant ``t_s`` (propagated to it when the link says so), and the status's
+        age then (NaN before the first status)."""
+        q = self._known(t_s)
         age = np.nan if self._report is None else t_s - self._report.time_s
-        return q.copy(), camera_pose(self.kinematics, self.body, q, t_s), float(age)
+        return q, camera_pose(self.kinematics, self.body, q, t_s), float(age)
 
     def drive(self, n_steps: int, rate_ref, q_known) -> None:
         """Send ``rate_ref`` (joint rates, rad/s) at the known joints ``q_known``, then step the device
         ``n_steps`` inner steps (lock-step: its statuses of the step arrive before it returns)."""
         self.driver.send_joint_rates(rate_ref, q_known)
+        self._commanded = np.asarray(rate_ref, dtype=float).copy()
         self.driver.step(n_steps * self.dt_s)
 
     def close(self) -> None:
