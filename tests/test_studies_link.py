@@ -48,7 +48,14 @@ def test_the_one_at_a_time_design_changes_one_factor_at_a_time():
 def test_the_grid_pairs_every_link_with_one_passive_run_per_replicate():
     study = link.LinkStudy(replicates=3)
     configs = link.grid(study)
-    assert len(configs) == 2 * (1 + 10) * 3
+    # passive, the in-process loop and 9 links as-is, and the 9 links propagated (the registered arm)
+    assert len(configs) == 2 * (1 + 10 + 9) * 3
+    arm = [c for c in configs if c.pointing.link is not None and c.pointing.link.attitude == "propagated"]
+    assert len(arm) == 2 * 9 * 3
+    as_is = {(c.target.kind, c.seed, c.pointing.link.replace(attitude="as-is")) for c in configs
+             if c.pointing.link is not None and c.pointing.link.attitude == "as-is"}
+    assert {(c.target.kind, c.seed, c.pointing.link.replace(attitude="as-is")) for c in arm} == as_is
+    assert len(link.grid(link.LinkStudy(replicates=3, propagated=False))) == 2 * (1 + 10) * 3
     passive = [c for c in configs if not c.pointing.active]
     assert len(passive) == 2 * 3 and all(c.pointing.link is None for c in passive)
     active = [c for c in configs if c.pointing.active]
@@ -149,8 +156,43 @@ def test_a_tiny_study_runs_end_to_end(tmp_path):
                  "figures/advantage_distance.png", "figures/factors_world.png"):
         assert (folder / name).is_file(), name
     r = pd.read_csv(folder / "replicates.csv")
-    assert sorted(set(r["link"])) == sorted([link.PASSIVE, link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss"])
+    assert sorted(set(r["link"])) == sorted([link.PASSIVE, link.IN_PROCESS, "5 Hz, 0 ms, 0°, 0 % loss",
+                                             "5 Hz, 0 ms, 0°, 0 % loss, propagated"])
+    v = pd.read_csv(folder / "verdicts.csv")
+    # the propagated arm's own family: L1p, L3p and P1 for the one link, named by its as-is name
+    arm = v[v["id"].isin(["L1p", "L3p", "P1"])]
+    assert sorted(arm["id"]) == ["L1p", "L3p", "P1"] and (arm["condition"] == "sphere, 5 Hz, 0 ms, 0°, 0 % loss").all()
+    assert (v.loc[v["id"].isin(["L1", "L2", "L3"]), "condition"].str.contains("propagated") == False).all()  # noqa: E712
     age = r.set_index("link")["mean_known_age_s"]
     assert (age[link.IN_PROCESS] == 0).all()
     assert ((age["5 Hz, 0 ms, 0°, 0 % loss"] > 0.02) & (age["5 Hz, 0 ms, 0°, 0 % loss"] < 0.2)).all()
     assert STUDIES["link"] == "gimbal_lab.studies.link"
+
+
+def test_the_propagated_arm_is_its_own_family_and_p1_pairs_with_the_as_is_link():
+    """Made-up replicates: P1 compares each link's propagated world error with its own as-is one
+    (paired by seed), L1p/L3p with the passive camera; Holm runs over the arm's verdicts alone, so
+    adding the arm changes no L verdict."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for seed in range(6):
+        passive = 0.07 + 0.001 * rng.standard_normal()
+        for name, attitude, distance, world in ((link.PASSIVE, "as-is", passive, passive),
+                                                ("10 Hz, 0 ms, 0°, 0 % loss", "as-is", 0.007, 0.118),
+                                                ("10 Hz, 0 ms, 0°, 0 % loss, propagated", "propagated", 0.007, 0.021)):
+            rows.append({"target": "sphere", "link": name, "attitude": attitude, "seed": seed,
+                         "mean_abs_error_m": distance + 0.0005 * rng.standard_normal(),
+                         "mean_world_error_m": world + 0.002 * rng.standard_normal()})
+    df = pd.DataFrame(rows)
+    plain = link.check_hypotheses(df)
+    assert set(plain["id"]) == {"L1", "L3"} and not plain["condition"].str.contains("propagated").any()
+    arm = link.check_propagation(df).set_index("id")
+    assert arm.loc["P1", "a"] == "propagated" and arm.loc["P1", "b"] == "as-is"
+    assert arm.loc["P1", "difference"] == pytest.approx(
+        (df[df.link.str.endswith("propagated")].set_index("seed")["mean_world_error_m"]
+         - df[df.link == "10 Hz, 0 ms, 0°, 0 % loss"].set_index("seed")["mean_world_error_m"]).mean())
+    assert arm.loc["P1", "verdict"] == arm.loc["L3p", "verdict"] == arm.loc["L1p", "verdict"] == "holds"
+    assert plain.set_index("id").loc["L3", "verdict"] == "does not hold"
+    # Holm over the arm alone: three verdicts, so each adjusted p is at most 3 × its own
+    assert (arm["p_holm"] <= 3 * arm["p_value"] + 1e-12).all() and len(arm) == 3
+    assert link.check_propagation(df[df.attitude == "as-is"]).empty

@@ -19,6 +19,11 @@ whole family, :func:`gimbal_lab.stats.holm`):
   level, the other factors at the reference link's;
 * **L3** per link and target: active through the link < passive, world error (the detection
   mapped to the world through the pose the loop knows).
+
+The propagated arm (``propagated``, docs/design.md "A loop that knows how old its attitude is"):
+every link again with ``GimbalLink.attitude = "propagated"`` (the status carried to the instant
+it is used by its own rates), with its own family: **L1p** and **L3p** as L1 and L3, and **P1**
+per link and target: propagated < as-is, world error.
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ from ._params import StudyParams
 from .paper import PaperStudy
 
 __all__ = ["LinkStudy", "Study", "links", "grid", "replicate_table", "summary_table", "check_hypotheses",
-           "break_even", "hypotheses_markdown", "make_report", "run_study", "FACTORS", "REFERENCE", "WORST",
+           "check_propagation", "break_even", "hypotheses_markdown", "make_report", "run_study", "FACTORS", "REFERENCE", "WORST",
            "IN_PROCESS", "PASSIVE", "DESIGNS"]
 
 NAME = "link"
@@ -113,11 +118,15 @@ class LinkStudy(StudyParams):
         The notebook's test size uses a few.
     targets : tuple of str
         "sphere", "aruco" or both.
+    propagated : bool
+        Also run every link (not the in-process loop) with the status propagated to the instant it
+        is used (the registered arm; True).
     """
 
     design: str = "one-at-a-time"
     only: tuple = ()
     targets: tuple = TARGETS
+    propagated: bool = True
 
     _TABLE = NAME
 
@@ -134,6 +143,9 @@ class LinkStudy(StudyParams):
         unknown = [n for n in self.only if n not in available]
         if unknown:
             raise ValueError(f"only: no link named {unknown} in the {self.design!r} design; links: {list(available)}")
+        if not isinstance(self.propagated, (bool, np.bool_)):
+            raise TypeError(f"propagated must be true or false, got {self.propagated!r}")
+        object.__setattr__(self, "propagated", bool(self.propagated))
 
     @property
     def links(self) -> dict[str, GimbalLink | None]:
@@ -148,12 +160,23 @@ class LinkStudy(StudyParams):
                           period_s=self.period_s, fps=self.fps, latency_frames=self.latency_frames,
                           noise_std=self.noise_std)
 
-    def config(self, target: str, link: str, seed: int) -> TrackingConfig:
-        """The run of a target, a link's name (or :data:`PASSIVE`) and a replicate."""
+    def config(self, target: str, link: str, seed: int, attitude: str = "as-is") -> TrackingConfig:
+        """The run of a target, a link's name (or :data:`PASSIVE`) and a replicate; ``attitude``
+        "propagated" for the propagated arm (a link's, not the in-process loop's)."""
         if link == PASSIVE:
             return self.paper.config(target, DISTORTION, TRAJECTORY, "passive", seed)
         config = self.paper.config(target, DISTORTION, TRAJECTORY, "active", seed)
-        return config.with_(pointing__link=links(self.design)[link])
+        chosen = links(self.design)[link]
+        if attitude != "as-is":
+            if chosen is None:
+                raise ValueError(f"the {link} loop has no link to propagate")
+            chosen = chosen.replace(attitude=attitude)
+        return config.with_(pointing__link=chosen)
+
+    @property
+    def propagated_links(self) -> list[str]:
+        """The links (by their as-is name) the propagated arm runs: every link, none when off."""
+        return [n for n, link in self.links.items() if link is not None] if self.propagated else []
 
     def to_dict(self) -> dict:
         out = super().to_dict()
@@ -168,7 +191,9 @@ def grid(study: LinkStudy | None = None) -> list[TrackingConfig]:
     """Every run: per target, the passive runs, then each link's active runs (replicates inner)."""
     study = study or LinkStudy()
     return [study.config(target, name, seed) for target in study.targets for name in (PASSIVE, *study.links)
-            for seed in study.seeds]
+            for seed in study.seeds] + \
+        [study.config(target, name, seed, "propagated") for target in study.targets for name in study.propagated_links
+         for seed in study.seeds]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -186,7 +211,7 @@ def _row(result) -> dict:
                    - measured[["q_yaw_rad", "q_roll_rad", "q_pitch_rad"]].to_numpy()).max(axis=1)
     mean = lambda x: float(np.mean(x)) if len(x) else math.nan  # noqa: E731
     return {"target": c.target.kind, "link": PASSIVE if not c.pointing.active else link_name(link),
-            "mode": c.pointing.mode, "seed": c.seed,
+            "mode": c.pointing.mode, "seed": c.seed, "attitude": link.attitude if link else "as-is",
             "status_rate_hz": link.status_rate_hz if link else math.nan,
             "latency_ms": 1000 * link.latency_s if link else math.nan,
             "quantum_deg": math.degrees(link.quantum_rad) if link else math.nan,
@@ -243,6 +268,8 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
     than two pairs is "inconclusive".
     """
     rows = []
+    if "attitude" in replicates:
+        replicates = replicates[replicates["attitude"] == "as-is"]
     present = set(zip(replicates["target"], replicates["link"]))
 
     def add(cid, statement, condition, a_label, b_label, a, b, factor="", metric="distance"):
@@ -272,6 +299,48 @@ def check_hypotheses(replicates: pd.DataFrame) -> pd.DataFrame:
     if not rows:
         raise ValueError("the replicate table holds none of the cells the hypotheses compare")
     return stats.holm(stats.verdict_table(rows))
+
+
+def _as_is_name(name: str) -> str:
+    """A propagated link's name without its ", propagated" (the as-is link it pairs with)."""
+    suffix = ", propagated"
+    return name[:-len(suffix)] if name.endswith(suffix) else name
+
+
+def check_propagation(replicates: pd.DataFrame) -> pd.DataFrame:
+    """The propagated arm's family (docs/design.md, "A loop that knows how old its attitude is"):
+    L1p and L3p per link and target (the propagated loop < passive, distance and world error) and
+    P1 (propagated < as-is, world error), conditions named by the as-is link, then
+    :func:`gimbal_lab.stats.holm` across these verdicts alone. Empty without propagated runs."""
+    arm = replicates[replicates["attitude"] == "propagated"]
+    if arm.empty:
+        return pd.DataFrame()
+    present = set(zip(replicates["target"], replicates["link"]))
+    rows = []
+
+    def add(cid, statement, condition, a_label, b_label, a, b, metric):
+        a, b = a.align(b, join="outer")
+        rows.append(dict(id=cid, statement=statement, condition=condition, a=a_label, b=b_label, unit="m",
+                         factor="", metric=metric, result=stats.less_than(a.to_numpy(), b.to_numpy(), drop_missing=True)))
+
+    names = list(dict.fromkeys(arm["link"]))
+    for cid, metric, what in (("L1p", "distance", "distance error"), ("L3p", "world", "world error")):
+        for target in TARGETS:
+            if (target, PASSIVE) not in present:
+                continue
+            for name in names:
+                if (target, name) in present:
+                    add(cid, f"propagated active through the link < passive ({what})", f"{target}, {_as_is_name(name)}",
+                        "propagated", "passive", _values(replicates, target, name, METRICS[metric]),
+                        _values(replicates, target, PASSIVE, METRICS[metric]), metric)
+    for target in TARGETS:
+        for name in names:
+            plain = _as_is_name(name)
+            if (target, name) in present and (target, plain) in present:
+                add("P1", "propagating the status lowers the world error", f"{target}, {plain}", "propagated",
+                    "as-is", _values(replicates, target, name, METRICS["world"]),
+                    _values(replicates, target, plain, METRICS["world"]), "world")
+    return stats.holm(stats.verdict_table(rows)) if rows else pd.DataFrame()
 
 
 def break_even(verdicts: pd.DataFrame, cid: str = "L1", column: str = "verdict_holm") -> pd.DataFrame:
@@ -318,8 +387,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         f"them. Design: {study.design} ({len(study.links)} links"
         f"{', a subset' if study.only else ''}); passive: the stabilised gimbal at home (no link).",
         "",
-        _params.verdict_rule("max(1 mm, 10 % of the smaller mean)", "Holm: every verdict of this report is one "
-                             "family at 5 % family-wise (verdict_holm)."),
+        _params.verdict_rule("max(1 mm, 10 % of the smaller mean)", "Holm: L1–L3 are one family at 5 % family-wise "
+                             "(verdict_holm), and the propagated arm's L1p, L3p and P1 another."),
         "",
         "| id | condition | a | b | metric | n | mean a mm | mean b mm | a − b [95 % CI] mm | δ mm | verdict | "
         "p Holm | Holm verdict |",
@@ -337,7 +406,8 @@ def hypotheses_markdown(verdicts: pd.DataFrame, summary: pd.DataFrame | None = N
         a, b = g["verdict"].value_counts(), g["verdict_holm"].value_counts()
         lines.append(f"| {cid} | " + " | ".join(str(a.get(v, 0)) for v in stats.VERDICTS) + " | "
                      + " | ".join(str(b.get(v, 0)) for v in stats.VERDICTS) + " |")
-    for cid, what in (("L1", "distance error"), ("L3", "world error")):
+    for cid, what in (("L1", "distance error"), ("L3", "world error"), ("L1p", "distance error, propagated"),
+                      ("L3p", "world error, propagated")):
         table = break_even(verdicts, cid)
         if len(table):
             lines += ["", f"## Break-even of {cid} ({what}): the first level of each factor where active no longer "
@@ -442,7 +512,7 @@ def make_report(results, study: LinkStudy) -> _report.Report:
     ``figures/`` the advantage and the factors per metric and the forest plot, PNG and SVG."""
     replicates = replicate_table(results)
     summary = summary_table(replicates)
-    verdicts = check_hypotheses(replicates)
+    verdicts = pd.concat([check_hypotheses(replicates), check_propagation(replicates)], ignore_index=True)
     figures = []
     for metric in METRICS:
         figures += [(f"advantage_{metric}", lambda metric=metric: plot_advantage(summary, metric)),
