@@ -543,8 +543,13 @@ class ReportFolder:
             files = {name: entry for name, entry in self._manifest().get("files", {}).items()
                      if os.path.lexists(self.path / name)}
             stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-            entries = {name: {"bytes": (tmp / name).stat().st_size, "sha256": _sha256(tmp / name),
-                              "written_utc": stamp} for name in new}
+            entries = {}
+            for name in new:
+                entry = {"bytes": (tmp / name).stat().st_size, "sha256": _sha256(tmp / name), "written_utc": stamp}
+                old = files.get(name, {})
+                if (old.get("bytes"), old.get("sha256")) == (entry["bytes"], entry["sha256"]) and "written_utc" in old:
+                    entry["written_utc"] = old["written_utc"]  # the same bytes again: its record stays as it was
+                entries[name] = entry
             aside = self.path / f"{_STAGING}{_unique()}"
             with deferred_interrupts():
                 _Commit(self, tmp, aside, new).run(files, entries)
