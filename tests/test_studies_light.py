@@ -61,10 +61,23 @@ def test_point_config_sets_the_sensor_the_scene_and_the_pipeline():
     assert c.target.cone_range_m == 4.0
     half, period = L.cone_for_rate(0.4)
     assert c.target.cone_half_angle_rad == pytest.approx(half) and c.target.period_s == period
-    # one run records the paper's circle and the cone fit beside it: the two active pipelines share it
-    assert L.point_config(values, "active (paper)", 0.004, 100) == L.point_config(values, "active (best)", 0.004, 100)
-    assert L.point_config(values, "active (best)", 0.004, 100).pointing.kind == "paper"
-    assert L.point_config(values, "stabilised, cone fit", 0.004, 100).estimator.sphere_method == "circle"
+    assert c.camera.lens == "default" and c.camera.lens_model is not None  # the paper's distorted lens
+    # what each pipeline's run is: pointing, sphere method, lens strategy (docs/design.md, decided in b52bb98)
+    runs = {p: L.point_config(values, p, 0.004, 100) for p in L.PIPELINES}
+    parts = {p: (c.pointing.kind, c.estimator.sphere_method, c.estimator.lens_strategy) for p, c in runs.items()}
+    assert parts == {
+        "active (paper)": ("paper", "circle", "ignore"), "active (best)": ("paper", "ellipse", "undistort"),
+        "fixed, circle": ("fixed", "circle", "undistort"), "fixed, cone fit": ("fixed", "circle", "undistort"),
+        "fixed, streak": ("fixed", "streak", "undistort"),
+        "stabilised, circle": ("stabilised", "circle", "undistort"),
+        "stabilised, cone fit": ("stabilised", "circle", "undistort"),
+        "stabilised, streak": ("stabilised", "streak", "undistort")}
+    # the known lens reaches the active loop, so the two active pipelines are two runs; a passive
+    # mount's circle method and cone fit are one (the cone fit in its alt_* columns)
+    assert runs["active (paper)"] != runs["active (best)"]
+    assert runs["fixed, circle"] == runs["fixed, cone fit"] and L._RUN_OF["fixed, cone fit"][1] == "alt_"
+    assert runs["stabilised, circle"] == runs["stabilised, cone fit"]
+    assert {c.camera for c in runs.values()} == {c.camera}  # every pipeline sees the same camera
     with pytest.raises(ValueError, match="pipeline"):
         L.point_config(values, "gimbal", 0.004, 100)
 
@@ -151,18 +164,20 @@ class _Result:
 def test_run_errors_read_the_main_and_the_alt_columns_over_measured_frames():
     f = _frames([True, True, True, False, True], [9.0, 9.0, 0.002, 5.0, 0.004],
                 [True, True, True, True, False], [9.0, 9.0, 0.001, 0.003, 7.0])
-    e = L.run_errors(f, "active")
-    assert e["active (paper)"] == (pytest.approx(0.003), 2)  # frames 2 and 4 (0 and 1 acquire)
-    assert e["active (best)"] == (pytest.approx(0.002), 2)  # frames 2 and 3
+    e = L.run_errors(f, "fixed")
+    assert e["fixed, circle"] == (pytest.approx(0.003), 2)  # frames 2 and 4 (0 and 1 acquire)
+    assert e["fixed, cone fit"] == (pytest.approx(0.002), 2)  # frames 2 and 3
+    assert L.run_errors(f, "active (best)") == {"active (best)": (pytest.approx(0.003), 2)}
 
 
 def test_responses_pair_on_the_frames_both_detected():
-    index = pd.DataFrame([(0, 200, "active", "active (best)", 0.004), (0, 200, "passive", "fixed, circle", 0.001)],
+    index = pd.DataFrame([(0, 200, "active", "active (best)", 0.004), (0, 200, "passive", "fixed, cone fit", 0.001)],
                          columns=["point", "seed", "side", "pipeline", "exposure_s"])
-    active = _frames([True] * 5, [0, 0, 0.010, 0.020, 0.030], alt_errors=[0, 0, 0.001, 0.002, 0.100])
-    passive = _frames([True, True, True, True, False], [0, 0, 0.005, 0.005, 0.005])
+    active = _frames([True] * 5, [0, 0, 0.001, 0.002, 0.100], alt_errors=[0, 0, 0.010, 0.020, 0.030])
+    passive = _frames([True] * 5, [0, 0, 0.009, 0.009, 0.009], [True, True, True, True, False],
+                      [0, 0, 0.005, 0.005, 0.005])
     r = L.response_table(index, [_Result(active), _Result(passive)]).iloc[0]
-    # active (best) is the alt column; the common frames are 2 and 3
+    # active (best) is its run's own column, the cone fit the alt column; the common frames are 2 and 3
     assert r["active_m"] == pytest.approx(0.0015) and r["passive_m"] == pytest.approx(0.005)
     assert r["delta_m"] == pytest.approx(-0.0035) and r["common_rate"] == pytest.approx(2 / 3)
 
@@ -283,7 +298,7 @@ def _fake_map(study):
     calibration = []
     for r in index.itertuples():
         pays = r.point < 6
-        base = (0.002 if pays else 0.008) if r.run == "active" else (0.008 if pays else 0.002)
+        base = (0.002 if pays else 0.008) if r.run.startswith("active") else (0.008 if pays else 0.002)
         extra = abs(r.exposure_s - 0.004)
         calibration.append(_fake_run(base + extra, base + extra + 0.0005))  # alt: 0.5 mm worse
     best = L.best_pipelines(L.choose_exposures(L.calibration_table(calibration, study)))

@@ -20,11 +20,13 @@ of "pays" on log s gives the s where the gimbal starts to pay, with a bootstrap 
 (:func:`fit_boundary`). The factors are ranked by SALib's ``rbd_fast`` on the ranks of the
 per-point mean Δ, so one runaway point cannot zero the ranking (:func:`rank_factors`).
 
-Runs share what the simulation records: a circle-method run records the cone fit beside it
-(``alt_*`` columns, the same detection and the same frames; the paper's loop steers on the pixel
-centre alone, which both share), so *active (paper)* and *active (best)* are one run, and each
-passive mount's circle method and cone fit are one run; the blur-aware localiser is a run of its
-own on each mount.
+The camera has the paper's distorted lens (``lens="default"``). *Active (paper)* ignores it (the
+circle method); *active (best)* and every passive pipeline know it (``lens_strategy="undistort"``).
+A known lens also reaches the active outer loop, so the two active pipelines fly differently and
+are two runs. Runs share what the simulation records where the frames are the same: a passive
+mount's circle-method run records the cone fit beside it (``alt_*`` columns, the same detection and
+the same frames); the blur-aware localiser is a run of its own on each mount (:data:`RUNS`: six
+runs per point, exposure and seed).
 """
 
 from __future__ import annotations
@@ -94,19 +96,24 @@ FACTORS = (
 )
 FACTOR_NAMES = tuple(f.name for f in FACTORS)
 
-#: The runs made at a point, exposure and seed: (run, pointing kind, sphere method, the pipelines
-#: it records as (pipeline, column prefix)); "" is the run's own estimate, "alt_" the one beside it.
+#: The runs made at a point, exposure and seed: (run, pointing kind, sphere method, lens strategy, the
+#: pipelines it records as (pipeline, column prefix)); "" is the run's own estimate, "alt_" the one
+#: beside it on the same detection and frame. The camera has the paper's distorted lens: *active
+#: (paper)* ignores it; *active (best)* and every passive pipeline know it ("undistort"), which also
+#: gives the active loop the lens, so the two active pipelines fly differently and are two runs.
 RUNS = (
-    ("active", "paper", "circle", (("active (paper)", ""), ("active (best)", "alt_"))),
-    ("fixed", "fixed", "circle", (("fixed, circle", ""), ("fixed, cone fit", "alt_"))),
-    ("fixed, streak", "fixed", "streak", (("fixed, streak", ""),)),
-    ("stabilised", "stabilised", "circle", (("stabilised, circle", ""), ("stabilised, cone fit", "alt_"))),
-    ("stabilised, streak", "stabilised", "streak", (("stabilised, streak", ""),)),
+    ("active (paper)", "paper", "circle", "ignore", (("active (paper)", ""),)),
+    ("active (best)", "paper", "ellipse", "undistort", (("active (best)", ""),)),
+    ("fixed", "fixed", "circle", "undistort", (("fixed, circle", ""), ("fixed, cone fit", "alt_"))),
+    ("fixed, streak", "fixed", "streak", "undistort", (("fixed, streak", ""),)),
+    ("stabilised", "stabilised", "circle", "undistort",
+     (("stabilised, circle", ""), ("stabilised, cone fit", "alt_"))),
+    ("stabilised, streak", "stabilised", "streak", "undistort", (("stabilised, streak", ""),)),
 )
-_RUN_OF = {pipe: (run, prefix) for run, _, _, pipes in RUNS for pipe, prefix in pipes}
-_RUN_PARTS = {run: (kind, method) for run, kind, method, _ in RUNS}
+_RUN_OF = {pipe: (run, prefix) for run, *_, pipes in RUNS for pipe, prefix in pipes}
+_RUN_PARTS = {run: (kind, method, lens) for run, kind, method, lens, _ in RUNS}
 #: Every pipeline, the active ones first.
-PIPELINES = tuple(pipe for _, _, _, pipes in RUNS for pipe, _ in pipes)
+PIPELINES = tuple(pipe for *_, pipes in RUNS for pipe, _ in pipes)
 ACTIVE = ("active (paper)", "active (best)")
 PASSIVE = tuple(p for p in PIPELINES if p not in ACTIVE)
 
@@ -267,10 +274,10 @@ def point_config(values, pipeline: str, exposure_s: float, seed: int, study: Lig
     study = study or LightStudy()
     if pipeline not in _RUN_OF:
         raise ValueError(f"pipeline must be one of {PIPELINES}, got {pipeline!r}")
-    kind, method = _RUN_PARTS[_RUN_OF[pipeline][0]]
+    kind, method, lens_strategy = _RUN_PARTS[_RUN_OF[pipeline][0]]
     lux = float(values["light_lux"]) if light_lux is None else float(light_lux)
     camera = Camera(fps=study.fps, latency_frames=study.latency_frames, exposure_s=float(exposure_s),
-                    noise="sensor", light_lux=lux)
+                    noise="sensor", light_lux=lux, lens="default")
     range_m = float(values["range_m"])
     half_angle_rad, period_s = cone_for_rate(float(values["rate_rad_s"]), study.period_s)
     # the sphere whose outline on the optical axis at range_m is diameter_px across: r = D·sin(atan(d / 2f))
@@ -280,7 +287,7 @@ def point_config(values, pipeline: str, exposure_s: float, seed: int, study: Lig
                     cone_half_angle_rad=half_angle_rad, cone_range_m=range_m)
     platform = Platform(motion="vibration", vibration=Vibration(rms_rad=math.radians(float(values["vibration_deg"]))))
     return TrackingConfig(camera=camera, target=target, platform=platform, pointing=Pointing(kind),
-                          estimator=Estimator(sphere_method=method), revolutions=study.revolutions, seed=int(seed))
+                          estimator=Estimator(sphere_method=method, lens_strategy=lens_strategy), revolutions=study.revolutions, seed=int(seed))
 
 
 def calibration_index(study: LightStudy | None = None) -> pd.DataFrame:
@@ -293,7 +300,7 @@ def calibration_index(study: LightStudy | None = None) -> pd.DataFrame:
 
 
 def _run_pipeline(run: str) -> str:
-    return next(pipes[0][0] for r, _, _, pipes in RUNS if r == run)
+    return next(pipes[0][0] for r, *_, pipes in RUNS if r == run)
 
 
 def grid(study: LightStudy | None = None) -> list[TrackingConfig]:
@@ -323,7 +330,7 @@ def run_errors(frames: pd.DataFrame, run: str) -> dict:
     detected, m, NaN when none; how many such frames)."""
     measured = _measured(frames)
     out = {}
-    for pipe, prefix in next(p for r, _, _, p in RUNS if r == run):
+    for pipe, prefix in next(p for r, *_, p in RUNS if r == run):
         detected = measured[f"{prefix}detected"].to_numpy(bool)
         errors = measured[f"{prefix}abs_error_m"].to_numpy(float)[detected]
         out[pipe] = (float(errors.mean()) if errors.size else math.nan, int(errors.size))
