@@ -44,6 +44,12 @@ model). The standard normals come from 16 raw random bits each through a table o
 inverse CDF at the 2¹⁶ mid-quantiles (tails beyond ±4.2 σ cut), as
 :func:`gimbal_lab.scene.add_sensor_noise` draws its noise. Pixels below the threshold draw the
 full model. ``exact=True`` draws the full model everywhere.
+
+*Poisson sampler*: the full model's shot noise is drawn by inversion per grey level (a frame has at
+most 256 distinct means): one uniform per pixel against the Poisson CDF of its level's mean, found
+through a guide table (:func:`_poisson_by_level`); exact up to the CDF's float64 rounding and tails
+beyond 12 σ + 12 (below 10⁻³⁰). Means above :data:`_INVERSION_MAX_E` (only with ``exact=True``)
+draw numpy's own sampler.
 """
 
 from __future__ import annotations
@@ -51,6 +57,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 __all__ = [
@@ -234,6 +241,140 @@ def _standard_normals(rng: np.random.Generator, size: int) -> np.ndarray:
     return np.take(_normal_table(), draws)
 
 
+def _level_table(values: np.ndarray) -> np.ndarray:
+    """256 values as a lookup table :func:`cv2.LUT` reads (shape (1, 256))."""
+    return np.ascontiguousarray(values).reshape(1, 256)
+
+
+def _lookup(levels: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``table[levels]`` for a flat uint8 ``levels``, as a flat array of the table's dtype."""
+    return cv2.LUT(levels.reshape(-1, 1), table).reshape(-1)
+
+
+def _to_uint8(signal: np.ndarray) -> np.ndarray:
+    """clip(round(signal), 0, 255) as uint8, halves to even (numpy's rint), in one pass."""
+    if signal.size <= 4:  # OpenCV would read an array this small as a scalar
+        return np.clip(np.rint(signal), 0, 255).astype(np.uint8)
+    return cv2.add(signal.reshape(-1, 1), 0.0, dtype=cv2.CV_8U).reshape(-1)
+
+
+def _mean(image: np.ndarray) -> float:
+    """Mean grey level of a uint8 image: the exact integer sum over the count, as ``np.mean`` gives it."""
+    if image.size <= 4:
+        return float(np.mean(image, dtype=np.float64))
+    return cv2.sumElems(image.reshape(-1, 1))[0] / image.size
+
+
+def _electrons(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Poisson electrons for pixels of grey ``levels`` with means ``mean_e[level]``: by inversion
+    (:func:`_poisson_by_level`) up to :data:`_INVERSION_MAX_E`, numpy's sampler above."""
+    by_inversion = mean_e <= _INVERSION_MAX_E
+    shot = _poisson_by_level(levels, np.where(by_inversion, mean_e, 0.0), rng)
+    if not by_inversion.all():
+        rest = np.flatnonzero(np.take(~by_inversion, levels))
+        if rest.size:
+            shot = shot.astype(np.int64)
+            shot[rest] = rng.poisson(mean_e[levels[rest]])
+    return shot
+
+
+@dataclass(frozen=True)
+class _PoissonTables:
+    """Per grey level, the Poisson CDF the inversion sampler reads (:func:`_poisson_by_level`).
+
+    Level v's row holds P(K ≤ k) at its mean for the counts k = lo_v ... hi_v (``cdf``, the last
+    entry set to 1; ``count`` holds each entry's k). ``guide[v·M + j]`` covers the draws
+    u ∈ [j/M, (j + 1)/M): the count they all give where no CDF value lies in that cell, else
+    −1 − the global index of the row's first entry above j/M, from which a draw searches on.
+    """
+
+    guide: np.ndarray    # int32, shape (256·M,)
+    cdf: np.ndarray      # float64, all rows end to end
+    count: np.ndarray    # int32, the count k of each CDF entry
+    base: np.ndarray     # int32, shape (1, 256): v·M, the first of level v's guide cells
+
+
+_GUIDE_CELLS = 1024
+_POISSON_TABLES: dict = {}
+#: Largest Poisson mean, e⁻, drawn by inversion (a row of about 2,400 counts); numpy's sampler above.
+_INVERSION_MAX_E = 1e4
+
+
+def _poisson_tables(mean_e: np.ndarray) -> _PoissonTables:
+    """The inversion tables for the Poisson means ``mean_e`` (shape (256,), e⁻), cached by value.
+
+    A row spans mean ± (12 σ + 12) counts (σ = sqrt(mean)); the probability beyond, below 10⁻³⁰,
+    goes to the row's first and last count.
+    """
+    key = mean_e.tobytes()
+    tables = _POISSON_TABLES.get(key)
+    if tables is not None:
+        return tables
+    from scipy.stats import poisson
+
+    cells = np.arange(_GUIDE_CELLS) / _GUIDE_CELLS
+    cdf_rows, count_rows, guide_rows, start = [], [], [], 0
+    for mean in mean_e:
+        half = 12.0 * math.sqrt(mean) + 12.0
+        counts = np.arange(max(0.0, math.floor(mean - half)), math.ceil(mean + half) + 1.0)
+        cdf = np.maximum.accumulate(poisson.cdf(counts, mean))
+        cdf[-1] = 1.0
+        first_above = np.searchsorted(cdf, cells, side="right")
+        first_at_next = np.searchsorted(cdf, cells + 1.0 / _GUIDE_CELLS, side="left")
+        guide_rows.append(np.where(first_above == first_at_next, counts[np.minimum(first_above, counts.size - 1)],
+                                   -1 - (start + first_above)))
+        cdf_rows.append(cdf)
+        count_rows.append(counts)
+        start += counts.size
+    tables = _PoissonTables(guide=np.concatenate(guide_rows).astype(np.int32), cdf=np.concatenate(cdf_rows),
+                            count=np.concatenate(count_rows).astype(np.int32),
+                            base=_level_table(np.arange(256, dtype=np.int32) * _GUIDE_CELLS))
+    if len(_POISSON_TABLES) >= 16:
+        _POISSON_TABLES.pop(next(iter(_POISSON_TABLES)))
+    _POISSON_TABLES[key] = tables
+    return tables
+
+
+def _poisson_by_level(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Poisson counts with mean ``mean_e[v]`` for each v in ``levels``, by inversion.
+
+    One uniform u in [0, 1) per sample (``rng.random``, 53 bits), in the samples' order; the count
+    is the least k with P(K ≤ k) > u, read from a guide table of 1024 cells per level (Chen and
+    Asau's indexed search) or, for a draw in a cell that holds a CDF step, searched from there.
+    Exact up to the CDF's float64 rounding and the tails beyond 12 σ + 12 (docs/design.md,
+    "Sensor and light").
+
+    Parameters
+    ----------
+    levels : ndarray of uint8, shape (N,)
+        Each sample's grey level.
+    mean_e : ndarray, shape (256,)
+        The Poisson mean of each grey level, e⁻ (>= 0).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of int32, shape (N,)
+        The counts, e⁻.
+    """
+    tables = _poisson_tables(np.asarray(mean_e, dtype=np.float64))
+    u = rng.random(levels.size)
+    u *= _GUIDE_CELLS  # exact: a power of two only shifts the exponent
+    cell = u.astype(np.intp)
+    cell += _lookup(levels, tables.base)
+    count = np.take(tables.guide, cell)
+    todo = np.flatnonzero(count < 0)
+    if todo.size:
+        at = -1 - count[todo].astype(np.intp)
+        u_todo = u[todo] / _GUIDE_CELLS
+        step = np.flatnonzero(np.take(tables.cdf, at) <= u_todo)
+        while step.size:
+            at[step] += 1
+            step = step[np.take(tables.cdf, at[step]) <= u_todo[step]]
+        count[todo] = np.take(tables.count, at)
+    return count
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """A sensor behind a lens in a scene's light: the EMVA 1288 linear model (module docstring).
@@ -286,7 +427,7 @@ class SensorModel:
     def auto_gain(self, image: np.ndarray, exposure_s: float) -> float:
         """The auto-gain's K, DN/e⁻: the rendered mean over the expected electrons, within [K_min, K_max]."""
         low, high = self.figures.min_gain_dn_per_e, self.figures.max_gain_dn_per_e
-        mean_dn = float(np.mean(image, dtype=np.float64))
+        mean_dn = _mean(image)
         mean_e = self.electrons_at_full_reflectance(exposure_s) * mean_dn / 255.0
         if mean_e <= 0:
             return high
@@ -332,20 +473,27 @@ class SensorModel:
         dark_var = figures.dark_noise_e ** 2
         z = _standard_normals(rng, image.size)
         flat = image.reshape(-1)
-        # the normal shortcut: electrons = mean + sqrt(mean + σ_d²)·z, as grey levels before the clips
-        mean_dn = (gain * mean_e).astype(np.float32)
-        sd_dn = (gain * np.sqrt(mean_e + dark_var)).astype(np.float32)
-        signal = np.take(mean_dn, flat)
-        signal += np.take(sd_dn, flat) * z
-        full = np.ones(256, bool) if exact else mean_e < NORMAL_ABOVE_E
-        if full.any():
-            # the full model where the shortcut does not apply: Poisson shot noise plus Gaussian read noise
-            pick = np.flatnonzero(np.take(full, flat))
+        # the full model (Poisson shot noise plus Gaussian read noise) below the shortcut's threshold;
+        # mean_e grows with the level, so its levels are those below full_levels
+        full_levels = 256 if exact else int(np.count_nonzero(mean_e < NORMAL_ABOVE_E))
+        if full_levels == 256:
+            signal = (gain * (_electrons(flat, mean_e, rng) + figures.dark_noise_e * z)).astype(np.float32)
+        else:
+            # the normal shortcut: electrons = mean + sqrt(mean + σ_d²)·z, as grey levels before the clips
+            mean_dn = _level_table((gain * mean_e).astype(np.float32))
+            sd_dn = _level_table((gain * np.sqrt(mean_e + dark_var)).astype(np.float32))
+            pick = np.flatnonzero(flat < full_levels) if full_levels else np.empty(0, np.intp)
+            read_e = figures.dark_noise_e * z[pick]
+            signal = z  # z is used up here
+            signal *= _lookup(flat, sd_dn)
+            signal += _lookup(flat, mean_dn)
             if pick.size:
-                shot = rng.poisson(mean_e[flat[pick]])
-                signal[pick] = gain * (shot + figures.dark_noise_e * z[pick])
-        np.minimum(signal, np.float32(gain * figures.saturation_e), out=signal)
-        signal += np.float32(black_level_dn)
-        np.rint(signal, out=signal)
-        np.clip(signal, 0, 255, out=signal)
-        return signal.astype(np.uint8).reshape(image.shape)
+                shot = _electrons(flat[pick], np.where(mean_e < NORMAL_ABOVE_E, mean_e, 0.0), rng)
+                signal[pick] = gain * (shot + read_e)
+        saturation_dn = np.float32(gain * figures.saturation_e)
+        black_dn = np.float32(black_level_dn)
+        if saturation_dn + black_dn < 255:  # else the 8-bit clip reads 255 wherever the full well would
+            np.minimum(signal, saturation_dn, out=signal)
+        if black_dn:
+            signal += black_dn
+        return _to_uint8(signal).reshape(image.shape)
