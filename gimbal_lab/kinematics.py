@@ -411,6 +411,29 @@ class GimbalKinematics:
             )
         return np.clip(q, lo, hi)
 
+    def base_axes(self, q0: float, q1: float, q2: float) -> tuple[float, ...]:
+        """The joint axes z₀, z₁, z₂ in the base frame at joint angles (q0, q1, q2) rad, as nine floats
+        (z₀, z₁, z₂, three components each): the columns of ``angular_jacobian(q, "base")``, without
+        checks or arrays.
+
+        For the 1 kHz inner loop (:class:`gimbal_lab.mount.GimbalMount`), where building the DH chain
+        with arrays costs more than the step itself. z₀ is the base's z; z₁ = R₁·e_z and
+        z₂ = R₁·R₂·e_z with Rᵢ the rotation of the DH link transform Aᵢ (:func:`dh_transform`), so
+        z₂ = R₁·(sin θ₂ sin α₂, −cos θ₂ sin α₂, cos α₂). Equal to the chain's product to round-off
+        (tests/test_kinematics.py).
+        """
+        (off1, _, _, alpha1), (off2, _, _, alpha2), _ = self.dh_parameters
+        t1, t2 = q0 + off1, q1 + off2
+        ct1, st1, ca1, sa1 = math.cos(t1), math.sin(t1), math.cos(alpha1), math.sin(alpha1)
+        ct2, st2, ca2, sa2 = math.cos(t2), math.sin(t2), math.cos(alpha2), math.sin(alpha2)
+        # R₁'s columns: (cos θ, sin θ, 0), (−sin θ cos α, cos θ cos α, sin α), (sin θ sin α, −cos θ sin α, cos α)
+        x = (st2 * sa2, -ct2 * sa2, ca2)  # A₂'s z axis in frame 1
+        z1 = (st1 * sa1, -ct1 * sa1, ca1)
+        z2 = (ct1 * x[0] - st1 * ca1 * x[1] + z1[0] * x[2],
+              st1 * x[0] + ct1 * ca1 * x[1] + z1[1] * x[2],
+              sa1 * x[1] + ca1 * x[2])
+        return (0.0, 0.0, 1.0) + z1 + z2
+
     def angular_jacobian(self, q_rad, frame: str = "base", check_limits: bool = True) -> np.ndarray:
         """Matrix J with ω = J·q̇: joint rates to the camera's angular velocity.
 

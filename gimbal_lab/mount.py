@@ -173,12 +173,14 @@ class GimbalMount:
         self.moving = body.sway is not None or body.vibration is not None or body.flight is not None
         self._T_body_base = kinematics.T_body_base
         self._R_body_base = self._T_body_base[:3, :3]
+        self._R_rows = self._R_body_base.tolist()
         self._base_angle = [0.0, 0.0, 0.0]  # ∫ b_i dt
         self._w_body = None
         if self.moving:
             # at each step's midpoint: the joint angle's integral of b is then second-order exact
             t = (np.arange(self.n_steps + 1) + 0.5) * self.dt_s
             self._w_body = body.angular_rate_body(t)
+            self._w_body_rows = self._w_body.tolist()
         self._noise = None
         if gyro_noise_rad_s_rthz > 0:
             sigma = gyro_noise_rad_s_rthz * math.sqrt(0.5 / self.dt_s)
@@ -212,8 +214,24 @@ class GimbalMount:
         """The body's angular rate in the joint basis, b = (R_body_base·J_base(q))⁻¹·ω_body."""
         if self._w_body is None:
             return np.zeros(3)
-        J = self._R_body_base @ self.kinematics.angular_jacobian(q, frame="base", check_limits=False)
-        return np.linalg.solve(J, self._w_body[k])
+        return np.array(self._base_rate_values(float(q[0]), float(q[1]), float(q[2]), k))
+
+    def _base_rate_values(self, q0: float, q1: float, q2: float, k: int) -> tuple[float, float, float]:
+        """:meth:`_base_rates` of a moving body as three floats, by Cramer's rule on the 3 × 3 system
+        (the inner loop solves it twice a step; numpy's solver costs more in calls than in work)."""
+        z = self.kinematics.base_axes(q0, q1, q2)
+        R = self._R_rows
+        # M = R_body_base · [z₀ z₁ z₂], row by row
+        m = [R[i][0] * z[j] + R[i][1] * z[j + 1] + R[i][2] * z[j + 2] for i in range(3) for j in (0, 3, 6)]
+        w0, w1, w2 = self._w_body_rows[k]
+        # the cofactors of M's first column's rows, and of the right-hand side in its place
+        c0 = m[4] * m[8] - m[5] * m[7]
+        c1 = m[5] * m[6] - m[3] * m[8]
+        c2 = m[3] * m[7] - m[4] * m[6]
+        det = m[0] * c0 + m[1] * c1 + m[2] * c2
+        return ((w0 * c0 + m[1] * (w2 * m[5] - w1 * m[8]) + m[2] * (w1 * m[7] - w2 * m[4])) / det,
+                (m[0] * (w1 * m[8] - w2 * m[5]) + w0 * c1 + m[2] * (w2 * m[3] - w1 * m[6])) / det,
+                (m[0] * (w2 * m[4] - w1 * m[7]) + m[1] * (w1 * m[6] - w2 * m[3]) + w0 * c2) / det)
 
     @property
     def at_limit(self) -> tuple[bool, bool, bool]:
@@ -282,9 +300,10 @@ class GimbalMount:
             k = self.step_index
             b = None
             if self.moving:  # b at the step's midpoint, with the joints predicted there (midpoint rule)
-                q = self.q
-                w = np.array([a.rate_rad_s for a in axes])
-                b = self._base_rates(q + 0.5 * dt * (w - self._base_rates(q, k)), k)
+                q = [axes[i].angle_rad - base[i] for i in range(3)]
+                b = self._base_rate_values(*q, k)
+                half = 0.5 * dt
+                b = self._base_rate_values(*(q[i] + half * (axes[i].rate_rad_s - b[i]) for i in range(3)), k)
             for i in range(3):
                 axis = axes[i]
                 measured = axis.measured_rate_rad_s

@@ -231,6 +231,15 @@ def test_angular_jacobian_matches_finite_differences(q, frame):
     assert np.allclose(KIN.angular_jacobian(q, frame=frame), J_fd, atol=1e-8, rtol=0)
 
 
+@pytest.mark.parametrize("kin", [KIN, GimbalKinematics(centre_drop_m=0.1, camera_offset_m=0.0)])
+def test_base_axes_are_the_columns_of_the_chains_jacobian(kin):
+    # the inner loop's closed form against the DH chain's product (frames → z axes), within round-off
+    rng = np.random.default_rng(7)
+    for q in rng.uniform(-math.pi, math.pi, (500, 3)):
+        J = kin.angular_jacobian(q, "base", check_limits=False)
+        assert np.allclose(np.reshape(kin.base_axes(*q), (3, 3)).T, J, rtol=0.0, atol=1e-15)
+
+
 def test_angular_jacobian_at_home_by_hand():
     # base frame: yaw about z, roll about x, pitch about −y
     assert np.allclose(KIN.angular_jacobian(np.zeros(3)), [[0, 1, 0], [0, 0, -1], [1, 0, 0]], atol=1e-15)
