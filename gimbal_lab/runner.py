@@ -220,21 +220,26 @@ def _frame_clock(config: TrackingConfig) -> tuple[int, float]:
 
 
 #: Columns of the frame table that hold integers and booleans (``simulation.closed_loop`` writes
-#: Python ints and bools there); every other column of ``simulation._COLUMNS`` holds float64.
+#: Python ints and bools there, and in the ``<method>_detected`` column of each family a run's
+#: ``estimator.extra_methods`` adds); every other column holds float64.
 _INTEGER_COLUMNS = frozenset({"frame", "revolution"})
 _BOOLEAN_COLUMNS = frozenset({"detected", "alt_detected", "hidden", "partial", "at_limit_yaw", "at_limit_roll",
                                "at_limit_pitch"})
 
 
-def frame_schema() -> dict[str, np.dtype]:
-    """The frame table's columns, in order, and their dtypes (see :data:`gimbal_lab.simulation.FRAME_COLUMNS`)."""
-    from .simulation import _COLUMNS
+def frame_schema(config: TrackingConfig | None = None) -> dict[str, np.dtype]:
+    """The frame table's columns, in order, and their dtypes (see :data:`gimbal_lab.simulation.FRAME_COLUMNS`):
+    every run's, and with ``config`` the families its estimator adds
+    (:func:`gimbal_lab.simulation.frame_columns`)."""
+    from .simulation import _COLUMNS, frame_columns
+
+    extra_flags = set() if config is None else {f"{m}_detected" for m in config.estimator.extra_methods}
 
     def dtype(name):
-        return np.dtype("int64") if name in _INTEGER_COLUMNS else np.dtype(bool) if name in _BOOLEAN_COLUMNS \
-            else np.dtype("float64")
+        return np.dtype("int64") if name in _INTEGER_COLUMNS else np.dtype(bool) \
+            if name in _BOOLEAN_COLUMNS or name in extra_flags else np.dtype("float64")
 
-    return {name: dtype(name) for name in _COLUMNS}
+    return {name: dtype(name) for name in (_COLUMNS if config is None else frame_columns(config))}
 
 
 def _listed(names, limit: int = 3) -> str:
@@ -245,7 +250,7 @@ def _listed(names, limit: int = 3) -> str:
 def check_frames(frames, config: TrackingConfig) -> None:
     """Raise ValueError unless ``frames`` is a frame table a run of ``config`` can have produced.
 
-    Checked: the columns, in order, and their dtypes (:func:`frame_schema`); one row per frame
+    Checked: the columns, in order, and their dtypes (:func:`frame_schema` of ``config``); one row per frame
     (``config.n_frames``); ``frame`` = 0, 1, …, n − 1; ``t_s`` = k / fps. The simulation computes
     t_s as one correctly rounded division (error ≤ ½ ulp) and Parquet stores float64 exactly, so
     the times must agree within 2 ε·t_last (ε: float64's machine epsilon), which also admits a
@@ -254,7 +259,7 @@ def check_frames(frames, config: TrackingConfig) -> None:
     """
     if not isinstance(frames, pd.DataFrame):
         raise ValueError(f"it is a {type(frames).__name__}, not a frame table (pandas.DataFrame)")
-    schema = frame_schema()
+    schema = frame_schema(config)
     columns = list(frames.columns)
     if columns != list(schema):
         missing = [c for c in schema if c not in frames.columns]
