@@ -1339,6 +1339,11 @@ class Pointing(_Part):
 _SPHERE_METHODS = ("circle", "ellipse", "streak")
 _REFINEMENTS = ("none", "subpix", "contour", "apriltag")
 _LENS_STRATEGIES = ("ignore", "undistort", "rectify")
+#: The localiser each sphere method records beside its own estimate (``alt_*``).
+_ALT_METHOD = {"circle": "ellipse", "ellipse": "circle", "streak": "ellipse"}
+#: The columns of a localiser's family in the frame table, after its prefix (``alt_``, ``circle_``, ...).
+SPHERE_FAMILY_COLUMNS = ("detected", "est_x_m", "est_y_m", "est_z_m", "est_cam_x_m", "est_cam_y_m", "est_cam_z_m",
+                         "d_est_m", "error_m", "abs_error_m")
 
 
 @dataclass(frozen=True)
@@ -1353,6 +1358,15 @@ class Estimator(_Part):
         pixels' coverage, centre at mid-exposure; the cone fit on a sharp frame). Circle and
         ellipse record each other beside them on the same detection (``alt_*`` columns); streak
         records the ellipse, the method it replaces.
+    extra_methods : tuple of str
+        Sphere methods also run on the same detection and frame, each recorded in a column family of
+        its own, ``<method>_*`` (:data:`SPHERE_FAMILY_COLUMNS` after the prefix: ``circle_detected``,
+        ``circle_abs_error_m``, ...), after every other column of the frame table. None may be the
+        estimator's own method or the one recorded beside it; empty (the default) adds no column and
+        is left out of :meth:`to_dict`, so every run without it keeps its key and its frame table. On a
+        passive mount, where the estimator steers nothing, one run so records three localisers of the
+        same frames (the buying-rule map's passive runs: the streak method, the cone fit beside it
+        and the circle method here).
     lens_strategy : {"ignore", "undistort", "rectify"}
         How the estimator treats the lens (docs/design.md, "Lens sweep"). "ignore" (the paper):
         it assumes a pinhole camera whatever the lens. "undistort": it knows the lens and
@@ -1371,6 +1385,7 @@ class Estimator(_Part):
     sphere_method: str = "circle"
     lens_strategy: str = "ignore"
     aruco_refinement: str = "subpix"
+    extra_methods: tuple = ()
 
     _NAME = "estimator"
 
@@ -1378,6 +1393,21 @@ class Estimator(_Part):
         self._choice("sphere_method", _SPHERE_METHODS)
         self._choice("lens_strategy", _LENS_STRATEGIES)
         self._choice("aruco_refinement", _REFINEMENTS)
+        extra = self.extra_methods
+        if isinstance(extra, (str, bytes)) or not isinstance(extra, (tuple, list)):
+            raise TypeError(f"estimator.extra_methods must be a list of sphere methods, got {extra!r}")
+        for method in extra:
+            _choice("estimator.extra_methods", method, _SPHERE_METHODS)
+        recorded = (self.sphere_method, _ALT_METHOD[self.sphere_method])
+        if len(set(extra)) != len(extra) or set(extra) & set(recorded):
+            raise ValueError(f"estimator.extra_methods must be distinct methods other than {recorded[0]!r} and "
+                             f"{recorded[1]!r} (the estimate and the one beside it), got {list(extra)!r}")
+        self._set("extra_methods", tuple(extra))
+
+    def _encode(self, name, value):
+        if name == "extra_methods" and not value:
+            return None  # the default, left out so that the runs of before the field keep their keys
+        return _plain(value)
 
     @property
     def knows_lens(self) -> bool:
@@ -1399,6 +1429,9 @@ class _Estimator:
     estimate, the other one (circle ↔ ellipse; the ellipse beside the streak method, which also
     reads the frame's pixels) is recorded alongside as ``alt`` so the two can be
     compared on identical frames (the closed loop only uses the pixel centre, which they share).
+    The estimator's ``extra_methods`` run on that detection too; after each call ``extra`` holds
+    their centres in the camera frame by method (None where a method gives none or nothing was
+    detected).
 
     The lens strategy (:attr:`Estimator.lens_strategy`) decides what the localisers know: nothing
     ("ignore": pinhole with the camera's K), the lens ("undistort": the circle method on the
@@ -1412,6 +1445,8 @@ class _Estimator:
         from . import detection
 
         self.partial = False
+        self._extra = ()
+        self.extra = {}
         self.sphere = target.kind == "sphere"
         lens = camera.lens_model
         self.rectifier = detection.Rectifier(camera.intrinsics, lens) if estimator.lens_strategy == "rectify" else None
@@ -1428,11 +1463,15 @@ class _Estimator:
             ellipse = lambda det: detection.locate_sphere_ellipse(det, K, r, distortion=known)  # noqa: E731
             # the frame the detection came from (set per frame in __call__): the streak method reads its pixels
             streak = lambda det: detection.locate_sphere_streak(self._image, det, K, r, distortion=known)  # noqa: E731
-            self._methods = {"circle": (circle, ellipse), "ellipse": (ellipse, circle),
-                             "streak": (streak, ellipse)}[estimator.sphere_method]
+            by_name = {"circle": circle, "ellipse": ellipse, "streak": streak}
+            self._methods = (by_name[estimator.sphere_method], by_name[_ALT_METHOD[estimator.sphere_method]])
             if not alt:
                 self._methods = self._methods[:1]
+            self._extra = tuple((name, by_name[name]) for name in estimator.extra_methods)
         else:
+            if estimator.extra_methods:
+                raise ValueError(f"estimator.extra_methods {list(estimator.extra_methods)!r} are sphere localisers; "
+                                 f"the target is a {target.kind}")
             self.detector = detection.ArucoTracker(
                 K, marker_length_m=target.marker_length_m, refinement=estimator.aruco_refinement, distortion=known
             )
@@ -1447,6 +1486,7 @@ class _Estimator:
         from .camera import UndistortionError
 
         self.partial = False
+        self.extra = {name: None for name, _ in self._extra}
         if self.rectifier is not None:
             image = self.rectifier.rectify(image)
         if self.sphere:
@@ -1464,6 +1504,7 @@ class _Estimator:
                 return None if p is None else np.asarray(p, float)
 
             p, alt = [locate(m) for m in self._methods] + [None] * (2 - len(self._methods))
+            self.extra = {name: locate(m) for name, m in self._extra}
             return self._centre(det.center_px), p, alt
         pose = self.detector.detect(image).get(0)
         if pose is None:

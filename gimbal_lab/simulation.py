@@ -43,11 +43,12 @@ import numpy as np
 import pandas as pd
 
 from .camera import project
-from .config import CONE_FIELD_FRACTION, CONE_RANGE_M, Measurement, TrackingConfig, seed_stream, world_T_base  # noqa: F401
+from .config import (CONE_FIELD_FRACTION, CONE_RANGE_M, SPHERE_FAMILY_COLUMNS, Measurement,  # noqa: F401
+                     TrackingConfig, seed_stream, world_T_base)
 from .trajectories import target_pose
 
-__all__ = ["TrackingConfig", "TrackingResult", "simulate", "render_frame", "FRAME_COLUMNS", "world_T_base",
-           "make_renderer", "renderer_key", "CONE_RANGE_M", "CONE_FIELD_FRACTION"]
+__all__ = ["TrackingConfig", "TrackingResult", "simulate", "render_frame", "FRAME_COLUMNS", "frame_columns",
+           "world_T_base", "make_renderer", "renderer_key", "CONE_RANGE_M", "CONE_FIELD_FRACTION"]
 
 
 @dataclass
@@ -119,7 +120,16 @@ FRAME_COLUMNS = {
     "known_age_s": "truth instant minus the instant the known joints were sampled, s (0 in-process)",
     "cmd_yaw_rad_s, cmd_roll_rad_s, cmd_pitch_rad_s": "the joint-rate reference the outer loop gave after the "
                                                       "frame, rad/s (held until the next frame's)",
+    "<method>_*": "only in runs whose estimator.extra_methods name it, after every other column: the alt_* "
+                  "columns for that sphere method (circle_, ellipse_ or streak_) on the same detection and frame",
 }
+
+
+def frame_columns(config: TrackingConfig) -> list:
+    """The columns of ``config``'s frame table, in order: every run's (:data:`FRAME_COLUMNS`), then one
+    family per method of ``config.estimator.extra_methods`` (``<method>_detected``, ...)."""
+    return _COLUMNS + [f"{method}_{name}" for method in config.estimator.extra_methods
+                       for name in SPHERE_FAMILY_COLUMNS]
 
 
 def renderer_key(config: TrackingConfig) -> tuple:
@@ -301,7 +311,7 @@ def simulate(config: TrackingConfig, renderer=None, progress: bool = False) -> T
         if own_renderer:
             renderer.close()
     timing["total_s"] = time.perf_counter() - t_start
-    table = pd.DataFrame.from_records(rows, columns=_COLUMNS)
+    table = pd.DataFrame.from_records(rows, columns=frame_columns(config))
     return TrackingResult(config=config, frames=table, timing=timing)
 
 
@@ -309,7 +319,7 @@ def closed_loop(config: TrackingConfig, renderer, timing: dict | None = None):
     """The closed loop of :func:`simulate`, frame by frame: yields ``(row, image)``.
 
     ``row`` is the frame's tuple of values in the order of the frame table's columns
-    (:data:`FRAME_COLUMNS` describes them) and ``image`` the noisy frame the detector saw (RGB,
+    (:func:`frame_columns`; :data:`FRAME_COLUMNS` describes them) and ``image`` the noisy frame the detector saw (RGB,
     uint8). ``timing`` (optional) accumulates ``render_s`` and ``detect_s``.
     :func:`gimbal_lab.show.replay` runs it again to show a blurred run's frames exactly.
     """
@@ -393,6 +403,13 @@ def _frames(config, renderer, timing, mount, outer, link, rng, estimate, n_steps
         p_cam_alt = p_cam_alt if alt_ok else np.full(3, np.nan)
         p_alt = R_known @ p_cam_alt + c_known
         d_alt = float(np.linalg.norm(p_cam_alt))
+        extra = ()  # the families of estimator.extra_methods, as the alt_* columns
+        for method in config.estimator.extra_methods:
+            p_cam_x = estimate.extra[method]
+            x_ok = p_cam_x is not None and bool(np.all(np.isfinite(p_cam_x)))
+            p_cam_x = p_cam_x if x_ok else np.full(3, np.nan)
+            d_x = float(np.linalg.norm(p_cam_x))
+            extra += (x_ok, *(R_known @ p_cam_x + c_known), *p_cam_x, d_x, d_x - d_true, abs(d_x - d_true))
         u, v = (uv if uv is not None else (math.nan, math.nan))
         hidden, visible_fraction = target.visibility(c, T_world_target)
         predicted = outer.prediction(t_mid)
@@ -416,4 +433,4 @@ def _frames(config, renderer, timing, mount, outer, link, rng, estimate, n_steps
         if not run_first:
             steer(k, q_known)
             link.drive(frame_steps[k + 1] - frame_steps[k], rate_ref, q_known)
-        yield row + (*q_frame, known_age_s, *rate_ref), image
+        yield row + (*q_frame, known_age_s, *rate_ref) + extra, image

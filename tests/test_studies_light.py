@@ -67,16 +67,18 @@ def test_point_config_sets_the_sensor_the_scene_and_the_pipeline():
     parts = {p: (c.pointing.kind, c.estimator.sphere_method, c.estimator.lens_strategy) for p, c in runs.items()}
     assert parts == {
         "active (paper)": ("paper", "circle", "ignore"), "active (best)": ("paper", "ellipse", "undistort"),
-        "fixed, circle": ("fixed", "circle", "undistort"), "fixed, cone fit": ("fixed", "circle", "undistort"),
-        "fixed, streak": ("fixed", "streak", "undistort"),
-        "stabilised, circle": ("stabilised", "circle", "undistort"),
-        "stabilised, cone fit": ("stabilised", "circle", "undistort"),
-        "stabilised, streak": ("stabilised", "streak", "undistort")}
+        **{f"{mount}, {p}": (mount, "streak", "undistort") for mount in ("fixed", "stabilised")
+           for p in ("circle", "cone fit", "streak")}}
     # the known lens reaches the active loop, so the two active pipelines are two runs; a passive
-    # mount's circle method and cone fit are one (the cone fit in its alt_* columns)
+    # mount's three pipelines are one: the streak method's own columns, the cone fit beside it
+    # (alt_*) and the circle method's family (circle_*)
     assert runs["active (paper)"] != runs["active (best)"]
-    assert runs["fixed, circle"] == runs["fixed, cone fit"] and L._RUN_OF["fixed, cone fit"][1] == "alt_"
-    assert runs["stabilised, circle"] == runs["stabilised, cone fit"]
+    assert {runs[p].estimator.extra_methods for p in L.ACTIVE} == {()}
+    for mount in ("fixed", "stabilised"):
+        assert runs[f"{mount}, circle"] == runs[f"{mount}, cone fit"] == runs[f"{mount}, streak"]
+        assert runs[f"{mount}, circle"].estimator.extra_methods == ("circle",)
+        assert [L._RUN_OF[f"{mount}, {p}"] for p in ("circle", "cone fit", "streak")] == [
+            (mount, "circle_"), (mount, "alt_"), (mount, "")]
     assert {c.camera for c in runs.values()} == {c.camera}  # every pipeline sees the same camera
     with pytest.raises(ValueError, match="pipeline"):
         L.point_config(values, "gimbal", 0.004, 100)
@@ -97,7 +99,8 @@ def test_study_refuses_what_cannot_be_the_design():
         L.LightStudy(points=8)
     s = L.LightStudy(points=12, calibration_seeds=[100], exposures_ms=[16.7, 1, 4], replicates=2)
     assert s.exposures_ms == (1.0, 4.0, 16.7) and s.calibration_seeds == (100,) and s.seeds == [200, 201]
-    assert len(L.grid(s)) == 12 * 3 * 1 * len(L.RUNS)
+    assert len(L.RUNS) == 4 and len(L.grid(s)) == 12 * 3 * 1 * 4  # 2 active + 2 passive runs
+    assert len(L.grid(L.LightStudy())) == 40 * 6 * 2 * 4
 
 
 # ----------------------------------------------------------------------------------------------
@@ -148,12 +151,15 @@ def test_best_pipelines_by_kind_ties_to_the_first_listed():
     assert set(index["point"]) == {0} and len(index) == 4
 
 
-def _frames(detected, errors, alt_detected=None, alt_errors=None):
+def _frames(detected, errors, alt_detected=None, alt_errors=None, circle_detected=None, circle_errors=None):
     n = len(detected)
     alt_detected = detected if alt_detected is None else alt_detected
     alt_errors = errors if alt_errors is None else alt_errors
+    circle_detected = detected if circle_detected is None else circle_detected
+    circle_errors = errors if circle_errors is None else circle_errors
     return pd.DataFrame({"frame": np.arange(n), "revolution": [0] * 2 + [1] * (n - 2), "detected": detected,
-                         "abs_error_m": errors, "alt_detected": alt_detected, "alt_abs_error_m": alt_errors})
+                         "abs_error_m": errors, "alt_detected": alt_detected, "alt_abs_error_m": alt_errors,
+                         "circle_detected": circle_detected, "circle_abs_error_m": circle_errors})
 
 
 class _Result:
@@ -163,10 +169,12 @@ class _Result:
 
 def test_run_errors_read_the_main_and_the_alt_columns_over_measured_frames():
     f = _frames([True, True, True, False, True], [9.0, 9.0, 0.002, 5.0, 0.004],
-                [True, True, True, True, False], [9.0, 9.0, 0.001, 0.003, 7.0])
+                [True, True, True, True, False], [9.0, 9.0, 0.001, 0.003, 7.0],
+                [True, True, False, True, True], [9.0, 9.0, 8.0, 0.006, 0.010])
     e = L.run_errors(f, "fixed")
-    assert e["fixed, circle"] == (pytest.approx(0.003), 2)  # frames 2 and 4 (0 and 1 acquire)
+    assert e["fixed, streak"] == (pytest.approx(0.003), 2)  # frames 2 and 4 (0 and 1 acquire)
     assert e["fixed, cone fit"] == (pytest.approx(0.002), 2)  # frames 2 and 3
+    assert e["fixed, circle"] == (pytest.approx(0.008), 2)  # frames 3 and 4
     assert L.run_errors(f, "active (best)") == {"active (best)": (pytest.approx(0.003), 2)}
 
 

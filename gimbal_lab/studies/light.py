@@ -23,10 +23,11 @@ per-point mean Δ, so one runaway point cannot zero the ranking (:func:`rank_fac
 The camera has the paper's distorted lens (``lens="default"``). *Active (paper)* ignores it (the
 circle method); *active (best)* and every passive pipeline know it (``lens_strategy="undistort"``).
 A known lens also reaches the active outer loop, so the two active pipelines fly differently and
-are two runs. Runs share what the simulation records where the frames are the same: a passive
-mount's circle-method run records the cone fit beside it (``alt_*`` columns, the same detection and
-the same frames); the blur-aware localiser is a run of its own on each mount (:data:`RUNS`: six
-runs per point, exposure and seed).
+are two runs. On a passive mount the estimator steers nothing, so its three pipelines see the same
+frames and one run records them all on the same detection: the blur-aware localiser as the run's
+estimate, the cone fit beside it (``alt_*``) and the circle method in its own columns
+(``circle_*``, ``Estimator(extra_methods=("circle",))``). Four runs per point, exposure and seed
+(:data:`RUNS`).
 """
 
 from __future__ import annotations
@@ -96,22 +97,24 @@ FACTORS = (
 )
 FACTOR_NAMES = tuple(f.name for f in FACTORS)
 
-#: The runs made at a point, exposure and seed: (run, pointing kind, sphere method, lens strategy, the
-#: pipelines it records as (pipeline, column prefix)); "" is the run's own estimate, "alt_" the one
-#: beside it on the same detection and frame. The camera has the paper's distorted lens: *active
-#: (paper)* ignores it; *active (best)* and every passive pipeline know it ("undistort"), which also
-#: gives the active loop the lens, so the two active pipelines fly differently and are two runs.
+#: The runs made at a point, exposure and seed: (run, pointing kind, sphere method, lens strategy,
+#: the estimator's extra methods, the pipelines it records as (pipeline, column prefix)); "" is the
+#: run's own estimate, "alt_" the one beside it and "circle_" the circle method's family
+#: (``estimator.extra_methods``), all on the same detection and frame. The camera has the paper's
+#: distorted lens: *active (paper)* ignores it; *active (best)* and every passive pipeline know it
+#: ("undistort"), which also gives the active loop the lens, so the two active pipelines fly
+#: differently and are two runs. A passive mount steers on nothing its estimator gives, so one run
+#: per mount records its three pipelines.
 RUNS = (
-    ("active (paper)", "paper", "circle", "ignore", (("active (paper)", ""),)),
-    ("active (best)", "paper", "ellipse", "undistort", (("active (best)", ""),)),
-    ("fixed", "fixed", "circle", "undistort", (("fixed, circle", ""), ("fixed, cone fit", "alt_"))),
-    ("fixed, streak", "fixed", "streak", "undistort", (("fixed, streak", ""),)),
-    ("stabilised", "stabilised", "circle", "undistort",
-     (("stabilised, circle", ""), ("stabilised, cone fit", "alt_"))),
-    ("stabilised, streak", "stabilised", "streak", "undistort", (("stabilised, streak", ""),)),
+    ("active (paper)", "paper", "circle", "ignore", (), (("active (paper)", ""),)),
+    ("active (best)", "paper", "ellipse", "undistort", (), (("active (best)", ""),)),
+    ("fixed", "fixed", "streak", "undistort", ("circle",),
+     (("fixed, circle", "circle_"), ("fixed, cone fit", "alt_"), ("fixed, streak", ""))),
+    ("stabilised", "stabilised", "streak", "undistort", ("circle",),
+     (("stabilised, circle", "circle_"), ("stabilised, cone fit", "alt_"), ("stabilised, streak", ""))),
 )
 _RUN_OF = {pipe: (run, prefix) for run, *_, pipes in RUNS for pipe, prefix in pipes}
-_RUN_PARTS = {run: (kind, method, lens) for run, kind, method, lens, _ in RUNS}
+_RUN_PARTS = {run: (kind, method, lens, extra) for run, kind, method, lens, extra, _ in RUNS}
 #: Every pipeline, the active ones first.
 PIPELINES = tuple(pipe for *_, pipes in RUNS for pipe, _ in pipes)
 ACTIVE = ("active (paper)", "active (best)")
@@ -274,7 +277,7 @@ def point_config(values, pipeline: str, exposure_s: float, seed: int, study: Lig
     study = study or LightStudy()
     if pipeline not in _RUN_OF:
         raise ValueError(f"pipeline must be one of {PIPELINES}, got {pipeline!r}")
-    kind, method, lens_strategy = _RUN_PARTS[_RUN_OF[pipeline][0]]
+    kind, method, lens_strategy, extra_methods = _RUN_PARTS[_RUN_OF[pipeline][0]]
     lux = float(values["light_lux"]) if light_lux is None else float(light_lux)
     camera = Camera(fps=study.fps, latency_frames=study.latency_frames, exposure_s=float(exposure_s),
                     noise="sensor", light_lux=lux, lens="default")
@@ -287,7 +290,8 @@ def point_config(values, pipeline: str, exposure_s: float, seed: int, study: Lig
                     cone_half_angle_rad=half_angle_rad, cone_range_m=range_m)
     platform = Platform(motion="vibration", vibration=Vibration(rms_rad=math.radians(float(values["vibration_deg"]))))
     return TrackingConfig(camera=camera, target=target, platform=platform, pointing=Pointing(kind),
-                          estimator=Estimator(sphere_method=method, lens_strategy=lens_strategy), revolutions=study.revolutions, seed=int(seed))
+                          estimator=Estimator(sphere_method=method, lens_strategy=lens_strategy,
+                                              extra_methods=extra_methods), revolutions=study.revolutions, seed=int(seed))
 
 
 def calibration_index(study: LightStudy | None = None) -> pd.DataFrame:
