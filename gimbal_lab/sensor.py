@@ -267,14 +267,14 @@ def _mean(image: np.ndarray) -> float:
 
 def _electrons(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Poisson electrons for pixels of grey ``levels`` with means ``mean_e[level]``: by inversion
-    (:func:`_poisson_by_level`) up to :data:`_INVERSION_MAX_E`, numpy's sampler above."""
+    (:func:`_poisson_by_level`) up to :data:`_INVERSION_MAX_E`, then numpy's sampler above."""
     by_inversion = mean_e <= _INVERSION_MAX_E
-    shot = _poisson_by_level(levels, np.where(by_inversion, mean_e, 0.0), rng)
-    if not by_inversion.all():
-        rest = np.flatnonzero(np.take(~by_inversion, levels))
-        if rest.size:
-            shot = shot.astype(np.int64)
-            shot[rest] = rng.poisson(mean_e[levels[rest]])
+    if by_inversion.all():
+        return _poisson_by_level(levels, mean_e, rng)
+    low = np.take(by_inversion, levels)
+    shot = np.empty(levels.size, np.int64)
+    shot[low] = _poisson_by_level(levels[low], np.where(by_inversion, mean_e, 0.0), rng)
+    shot[~low] = rng.poisson(mean_e[levels[~low]])
     return shot
 
 
@@ -294,7 +294,7 @@ class _PoissonTables:
     base: np.ndarray     # int32, shape (1, 256): v·M, the first of level v's guide cells
 
 
-_GUIDE_CELLS = 1024
+_GUIDE_CELLS = 4096
 _POISSON_TABLES: dict = {}
 #: Largest Poisson mean, e⁻, drawn by inversion (a row of about 2,400 counts); numpy's sampler above.
 _INVERSION_MAX_E = 1e4
@@ -339,7 +339,7 @@ def _poisson_by_level(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Gen
     """Poisson counts with mean ``mean_e[v]`` for each v in ``levels``, by inversion.
 
     One uniform u in [0, 1) per sample (``rng.random``, 53 bits), in the samples' order; the count
-    is the least k with P(K ≤ k) > u, read from a guide table of 1024 cells per level (Chen and
+    is the least k with P(K ≤ k) > u, read from a guide table of 4096 cells per level (Chen and
     Asau's indexed search) or, for a draw in a cell that holds a CDF step, searched from there.
     Exact up to the CDF's float64 rounding and the tails beyond 12 σ + 12 (docs/design.md,
     "Sensor and light").
@@ -482,14 +482,19 @@ class SensorModel:
             # the normal shortcut: electrons = mean + sqrt(mean + σ_d²)·z, as grey levels before the clips
             mean_dn = _level_table((gain * mean_e).astype(np.float32))
             sd_dn = _level_table((gain * np.sqrt(mean_e + dark_var)).astype(np.float32))
-            pick = np.flatnonzero(flat < full_levels) if full_levels else np.empty(0, np.intp)
-            read_e = figures.dark_noise_e * z[pick]
-            signal = z  # z is used up here
+            full = flat < full_levels
+            n_full = int(np.count_nonzero(full)) if full_levels else 0
+            many = 4 * n_full > flat.size  # then masks cost less than the pixels' indices
+            pick = None if many else np.flatnonzero(full)
+            read_e = figures.dark_noise_e * (z if many else z[pick])  # a new array: z is used up below
+            signal = z
             signal *= _lookup(flat, sd_dn)
             signal += _lookup(flat, mean_dn)
-            if pick.size:
-                shot = _electrons(flat[pick], np.where(mean_e < NORMAL_ABOVE_E, mean_e, 0.0), rng)
-                signal[pick] = gain * (shot + read_e)
+            means_e = np.where(mean_e < NORMAL_ABOVE_E, mean_e, 0.0)
+            if many:  # every pixel draws a count (0 above the threshold), the full model's replace the shortcut's
+                np.copyto(signal, gain * (_electrons(flat, means_e, rng) + read_e), where=full, casting="same_kind")
+            elif n_full:
+                signal[pick] = gain * (_electrons(flat[pick], means_e, rng) + read_e)
         saturation_dn = np.float32(gain * figures.saturation_e)
         black_dn = np.float32(black_level_dn)
         if saturation_dn + black_dn < 255:  # else the 8-bit clip reads 255 wherever the full well would
