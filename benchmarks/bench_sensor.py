@@ -132,7 +132,7 @@ def main() -> None:
     for name, (old_ts, new_ts) in times.items():
         old_ms, new_ms = 1e3 * float(np.median(old_ts)), 1e3 * float(np.median(new_ts))
         normal = cases[name][3]
-        share = "100%" if cases[name][2].get("exact") else "" if normal is None else f"{1.0 - normal.mean():.0%}"
+        share = "100%" if cases[name][2].get("exact") else "" if normal is None else f"{1.0 - normal.mean():.1%}"
         print(f"{name:30s} {old_ms:9.2f} {new_ms:7.2f} {old_ms / new_ms:6.2f}  {share:>10s}  {same[name]}")
 
 

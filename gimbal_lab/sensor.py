@@ -54,6 +54,7 @@ draw numpy's own sampler.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -295,23 +296,20 @@ class _PoissonTables:
 
 
 _GUIDE_CELLS = 4096
-_POISSON_TABLES: dict = {}
 #: Largest Poisson mean, e⁻, drawn by inversion (a row of about 2,400 counts); numpy's sampler above.
 _INVERSION_MAX_E = 1e4
 
 
-def _poisson_tables(mean_e: np.ndarray) -> _PoissonTables:
-    """The inversion tables for the Poisson means ``mean_e`` (shape (256,), e⁻), cached by value.
+@functools.lru_cache(maxsize=16)
+def _poisson_tables(mean_e_bytes: bytes) -> _PoissonTables:
+    """The inversion tables for the Poisson means in ``mean_e_bytes`` (256 float64, e⁻), cached by value.
 
     A row spans mean ± (12 σ + 12) counts (σ = sqrt(mean)); the probability beyond, below 10⁻³⁰,
     goes to the row's first and last count.
     """
-    key = mean_e.tobytes()
-    tables = _POISSON_TABLES.get(key)
-    if tables is not None:
-        return tables
     from scipy.stats import poisson
 
+    mean_e = np.frombuffer(mean_e_bytes, dtype=np.float64)
     cells = np.arange(_GUIDE_CELLS) / _GUIDE_CELLS
     cdf_rows, count_rows, guide_rows, start = [], [], [], 0
     for mean in mean_e:
@@ -321,18 +319,14 @@ def _poisson_tables(mean_e: np.ndarray) -> _PoissonTables:
         cdf[-1] = 1.0
         first_above = np.searchsorted(cdf, cells, side="right")
         first_at_next = np.searchsorted(cdf, cells + 1.0 / _GUIDE_CELLS, side="left")
-        guide_rows.append(np.where(first_above == first_at_next, counts[np.minimum(first_above, counts.size - 1)],
+        guide_rows.append(np.where(first_above == first_at_next, counts[first_above],
                                    -1 - (start + first_above)))
         cdf_rows.append(cdf)
         count_rows.append(counts)
         start += counts.size
-    tables = _PoissonTables(guide=np.concatenate(guide_rows).astype(np.int32), cdf=np.concatenate(cdf_rows),
-                            count=np.concatenate(count_rows).astype(np.int32),
-                            base=_level_table(np.arange(256, dtype=np.int32) * _GUIDE_CELLS))
-    if len(_POISSON_TABLES) >= 16:
-        _POISSON_TABLES.pop(next(iter(_POISSON_TABLES)))
-    _POISSON_TABLES[key] = tables
-    return tables
+    return _PoissonTables(guide=np.concatenate(guide_rows).astype(np.int32), cdf=np.concatenate(cdf_rows),
+                          count=np.concatenate(count_rows).astype(np.int32),
+                          base=_level_table(np.arange(256, dtype=np.int32) * _GUIDE_CELLS))
 
 
 def _poisson_by_level(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -357,7 +351,7 @@ def _poisson_by_level(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Gen
     ndarray of int32, shape (N,)
         The counts, e⁻.
     """
-    tables = _poisson_tables(np.asarray(mean_e, dtype=np.float64))
+    tables = _poisson_tables(np.ascontiguousarray(mean_e, dtype=np.float64).tobytes())
     u = rng.random(levels.size)
     u *= _GUIDE_CELLS  # exact: a power of two only shifts the exponent
     cell = u.astype(np.intp)
