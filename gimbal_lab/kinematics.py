@@ -343,6 +343,39 @@ class GimbalKinematics:
         A1, A2, A3 = self.link_transforms(q_rad, check_limits)
         return A1 @ A2 @ A3 @ self._T_link3_cam
 
+    def forward_many(self, q_rad) -> np.ndarray:
+        """:meth:`forward` at many joint angles at once, without the limit check.
+
+        Parameters
+        ----------
+        q_rad : array_like, shape (N, 3)
+            Joint angles (yaw, roll, pitch), rad, one set per row (finite).
+
+        Returns
+        -------
+        ndarray, shape (N, 4, 4)
+            T_base_cam for each row: the same link transforms and the same products, in the same
+            order, as :meth:`forward` (stacked), so equal to it to round-off and, with numpy's
+            matmul taking each stacked product as it takes one, bit for bit.
+        """
+        q = np.asarray(q_rad, dtype=float)
+        if q.ndim != 2 or q.shape[1] != 3:
+            raise ValueError(f"q_rad must have shape (N, 3) (yaw, roll, pitch), got {q.shape}")
+        if not np.isfinite(q).all():
+            raise ValueError("q_rad must be finite")
+        n = len(q)
+        links = []
+        for column, (off, d, a, alpha) in zip(q.T.tolist(), self.dh_parameters):
+            ct = np.array([math.cos(v + off) for v in column])
+            st = np.array([math.sin(v + off) for v in column])
+            ca, sa = math.cos(alpha), math.sin(alpha)
+            A = np.zeros((n, 4, 4))
+            A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, a * ct
+            A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, a * st
+            A[:, 2, 1], A[:, 2, 2], A[:, 2, 3], A[:, 3, 3] = sa, ca, d, 1.0
+            links.append(A)
+        return links[0] @ links[1] @ links[2] @ self._T_link3_cam
+
     def T_body_cam(self, q_rad, check_limits: bool = True) -> np.ndarray:
         """Camera pose in the UAV body frame, T_body_base · T_base_cam, shape (4, 4)."""
         return self.T_body_base @ self.forward(q_rad, check_limits)

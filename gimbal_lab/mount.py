@@ -388,7 +388,7 @@ def camera_pose(kinematics, body: BodyMotion, q, t_s) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.ndim == 1:
         return T_world_base @ kinematics.forward(q, check_limits=False)
-    return np.array([T @ kinematics.forward(q_i, check_limits=False) for T, q_i in zip(T_world_base, q)])
+    return T_world_base @ kinematics.forward_many(q)
 
 
 def _exposure_margin_s(t0_s: float, t1_s: float) -> float:

@@ -763,6 +763,18 @@ def _check_pose(name: str, T) -> np.ndarray:
     return T
 
 
+def _check_poses(name: str, T) -> np.ndarray:
+    """:func:`_check_pose` for a stack of poses, (N, 4, 4)."""
+    T = np.asarray(T, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f"{name} must be finite 4x4 homogeneous transforms, got shape {T.shape}")
+    R = T[:, :3, :3]
+    last_row_ok = (np.abs(T[:, 3] - _LAST_ROW) <= _LAST_ROW_TOL).all()
+    if not last_row_ok or not (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)) <= _ORTHONORMAL_TOL).all():
+        raise ValueError(f"{name} must be rigid transforms (orthonormal rotation, last row 0 0 0 1)")
+    return T
+
+
 def _positive(name: str, value) -> float:
     value = float(value)
     if not np.isfinite(value) or value <= 0:
@@ -843,6 +855,15 @@ def _rigid_inverse(T: np.ndarray) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3] = T[:3, :3].T
     out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def _rigid_inverses(T: np.ndarray) -> np.ndarray:
+    """:func:`_rigid_inverse` of a stack of poses (N, 4, 4), by the same products."""
+    Rt = np.swapaxes(T[:, :3, :3], 1, 2)
+    out = np.tile(np.eye(4), (len(T), 1, 1))
+    out[:, :3, :3] = Rt
+    out[:, :3, 3] = -(Rt @ T[:, :3, 3:4])[:, :, 0]
     return out
 
 
@@ -954,30 +975,31 @@ class _ExposureMotion:
         T_cam, T_target = self._pose_fn(t)
         return _check_pose("T_world_cam", T_cam), _check_pose("T_world_target", T_target)
 
-    def _poses(self, times) -> list:
-        """``_pose`` at each time: through ``pose_fn.many(times)`` in one call when it has one."""
+    def _poses(self, times) -> tuple[np.ndarray, np.ndarray]:
+        """``_pose`` at each time, stacked (N, 4, 4) each: through ``pose_fn.many(times)`` in one
+        call when it has one."""
         self.pose_instants += len(times)
         many = getattr(self._pose_fn, "many", None)
         if many is None:
             self.pose_calls += len(times)
-            return [self._pose(t) for t in times]
+            pairs = [self._pose(t) for t in times]
+            return np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
         self.pose_calls += 1
         T_cam, T_target = many(np.asarray(times, dtype=float))
         if len(T_cam) != len(times) or len(T_target) != len(times):
             raise ValueError(f"pose_fn.many gave {len(T_cam)} and {len(T_target)} poses for {len(times)} times")
-        return [(_check_pose("T_world_cam", a), _check_pose("T_world_target", b)) for a, b in zip(T_cam, T_target)]
+        return _check_poses("T_world_cam", T_cam), _check_poses("T_world_target", T_target)
 
     def _relative(self, times) -> np.ndarray:
         """(len(times), 12): rotation vector and translation of the camera motion, then of the
         target motion, at each time."""
+        T_cam, T_target = self._poses(times)
         out = np.empty((len(times), 12))
-        rotations = np.empty((len(times), 2, 3, 3))
-        for i, (T_cam, T_target) in enumerate(self._poses(times)):
-            cam_inv = _rigid_inverse(T_cam)
-            C = cam_inv @ self._cam_ref
-            D = cam_inv @ T_target @ self._S_ref_inv
-            rotations[i] = C[:3, :3], D[:3, :3]
-            out[i, 3:6], out[i, 9:12] = C[:3, 3], D[:3, 3]
+        cam_inv = _rigid_inverses(T_cam)
+        C = cam_inv @ self._cam_ref
+        D = cam_inv @ T_target @ self._S_ref_inv
+        rotations = np.stack((C[:, :3, :3], D[:, :3, :3]), axis=1)
+        out[:, 3:6], out[:, 9:12] = C[:, :3, 3], D[:, :3, 3]
         rv = self._Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_rotvec().reshape(-1, 2, 3)
         out[:, 0:3], out[:, 6:9] = rv[:, 0], rv[:, 1]
         return out

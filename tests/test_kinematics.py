@@ -240,6 +240,19 @@ def test_base_axes_are_the_columns_of_the_chains_jacobian(kin):
         assert np.allclose(np.reshape(kin.base_axes(*q), (3, 3)).T, J, rtol=0.0, atol=1e-15)
 
 
+def test_forward_many_is_forward_at_each_row():
+    # the stacked chain against forward() one pose at a time (the same products; equal to
+    # round-off, 1e-15), across and beyond the joint ranges; bad shapes and NaN are refused
+    q = np.random.default_rng(3).uniform(-math.pi, math.pi, (300, 3))
+    expected = np.array([KIN.forward(row, check_limits=False) for row in q])
+    assert np.allclose(KIN.forward_many(q), expected, rtol=0.0, atol=1e-15)
+    assert KIN.forward_many(q[:0]).shape == (0, 4, 4)
+    with pytest.raises(ValueError, match=r"shape \(N, 3\)"):
+        KIN.forward_many(np.zeros(3))
+    with pytest.raises(ValueError, match="finite"):
+        KIN.forward_many([[0.0, math.nan, 0.0]])
+
+
 def test_angular_jacobian_at_home_by_hand():
     # base frame: yaw about z, roll about x, pitch about −y
     assert np.allclose(KIN.angular_jacobian(np.zeros(3)), [[0, 1, 0], [0, 0, -1], [1, 0, 0]], atol=1e-15)
