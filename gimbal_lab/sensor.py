@@ -284,15 +284,15 @@ class _PoissonTables:
     """Per grey level, the Poisson CDF the inversion sampler reads (:func:`_poisson_by_level`).
 
     Level v's row holds P(K ≤ k) at its mean for the counts k = lo_v ... hi_v (``cdf``, the last
-    entry set to 1; ``count`` holds each entry's k). ``guide[v·M + j]`` covers the draws
+    entry set to 1; ``count`` holds each entry's k). ``guide[base_v + j]`` covers the draws
     u ∈ [j/M, (j + 1)/M): the count they all give where no CDF value lies in that cell, else
     −1 − the global index of the row's first entry above j/M, from which a draw searches on.
     """
 
-    guide: np.ndarray    # int32, shape (256·M,)
+    guide: np.ndarray    # int32, shape (rows·M,)
     cdf: np.ndarray      # float64, all rows end to end
     count: np.ndarray    # int32, the count k of each CDF entry
-    base: np.ndarray     # int32, shape (1, 256): v·M, the first of level v's guide cells
+    base: np.ndarray     # int32, shape (1, 256): the first of level v's guide cells (levels of one mean share a row)
 
 
 _GUIDE_CELLS = 4096
@@ -312,7 +312,13 @@ def _poisson_tables(mean_e_bytes: bytes) -> _PoissonTables:
     mean_e = np.frombuffer(mean_e_bytes, dtype=np.float64)
     cells = np.arange(_GUIDE_CELLS) / _GUIDE_CELLS
     cdf_rows, count_rows, guide_rows, start = [], [], [], 0
-    for mean in mean_e:
+    base, row_of_mean = np.zeros(256, np.int32), {}
+    for level, mean in enumerate(mean_e):
+        if mean in row_of_mean:  # levels of one mean (0 for those the caller leaves out) share a row
+            base[level] = row_of_mean[mean] * _GUIDE_CELLS
+            continue
+        row_of_mean[mean] = len(guide_rows)
+        base[level] = row_of_mean[mean] * _GUIDE_CELLS
         half = 12.0 * math.sqrt(mean) + 12.0
         counts = np.arange(max(0.0, math.floor(mean - half)), math.ceil(mean + half) + 1.0)
         cdf = np.maximum.accumulate(poisson.cdf(counts, mean))
@@ -326,7 +332,7 @@ def _poisson_tables(mean_e_bytes: bytes) -> _PoissonTables:
         start += counts.size
     return _PoissonTables(guide=np.concatenate(guide_rows).astype(np.int32), cdf=np.concatenate(cdf_rows),
                           count=np.concatenate(count_rows).astype(np.int32),
-                          base=_level_table(np.arange(256, dtype=np.int32) * _GUIDE_CELLS))
+                          base=_level_table(base))
 
 
 def _poisson_by_level(levels: np.ndarray, mean_e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
