@@ -196,6 +196,16 @@ def test_run_errors_read_the_main_and_the_alt_columns_over_measured_frames():
     assert L.run_errors(f, "active (best)") == {"active (best)": (pytest.approx(0.003), 2)}
 
 
+def test_a_run_inside_its_first_revolution_measures_its_second_half():
+    # notebook 16's half revolution: every frame in revolution 0, so the map measures frames 3-5 of 6
+    f = _frames([True] * 6, [9.0, 9.0, 9.0, 0.002, 0.004, 0.006], [True] * 6, [0.0] * 6, [True] * 6, [0.0] * 6)
+    f["revolution"] = 0
+    assert L.run_errors(f, "fixed")["fixed, streak"] == (pytest.approx(0.004), 3)
+    # once a run reaches its second revolution only that counts, however short the first
+    f["revolution"] = [0, 1, 1, 1, 1, 1]
+    assert L.run_errors(f, "fixed")["fixed, streak"] == (pytest.approx((9.0 + 9.0 + 0.012) / 5), 5)
+
+
 def test_responses_pair_on_the_frames_both_detected():
     index = pd.DataFrame([(0, 200, "active", "active (best)", 0.004), (0, 200, "passive", "fixed, cone fit", 0.001)],
                          columns=["point", "seed", "side", "pipeline", "exposure_s"])
