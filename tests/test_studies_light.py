@@ -216,6 +216,11 @@ def test_responses_pair_on_the_frames_both_detected():
     # active (best) is its run's own column, the cone fit the alt column; the common frames are 2 and 3
     assert r["active_m"] == pytest.approx(0.0015) and r["passive_m"] == pytest.approx(0.005)
     assert r["delta_m"] == pytest.approx(-0.0035) and r["common_rate"] == pytest.approx(2 / 3)
+    # runs inside their first revolution pair on their second halves (frames 2-4 of 5: common 2 and 3)
+    for f in (active, passive):
+        f["revolution"] = 0
+    r = L.response_table(index, [_Result(active), _Result(passive)]).iloc[0]
+    assert r["delta_m"] == pytest.approx(-0.0035) and r["common_rate"] == pytest.approx(2 / 3)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -452,8 +452,11 @@ def test_configs(index: pd.DataFrame, study: LightStudy | None = None) -> list[T
 
 
 def _pipeline_frames(frames: pd.DataFrame, pipeline: str) -> pd.DataFrame:
+    """The measured frames (:func:`_measured`) of ``pipeline`` in the form
+    :func:`gimbal_lab.studies.payoff.common_frame_errors` reads, every row marked as measured there."""
     prefix = _RUN_OF[pipeline][1]
-    return pd.DataFrame({"frame": frames["frame"], "revolution": frames["revolution"],
+    frames = _measured(frames)
+    return pd.DataFrame({"frame": frames["frame"], "revolution": np.ones(len(frames), dtype=int),
                          "detected": frames[f"{prefix}detected"], "abs_error_m": frames[f"{prefix}abs_error_m"]})
 
 
