@@ -105,6 +105,7 @@ def plot_delta_vs_streak(points, boundary, ax=None):
         ax.errorbar(p["s_px"], y, yerr=err, fmt="o", color=colour, mec="k", ms=6, capsize=2, lw=1, zorder=3,
                     label=f"{_CLASS_LABELS[cls]} ({int(sel.sum())})")
     ax.set_xscale("log")
+    ax.set_yscale("symlog", linthresh=1.0)  # millimetres and metres on one axis, as the payoff map's
     _s_limits(ax, points, boundary)
     ax.set_xlabel("target's streak at the shortest exposure the light allows, s (px)")
     ax.set_ylabel("Δ = best active − best passive (mm)")
