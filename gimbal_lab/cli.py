@@ -221,7 +221,12 @@ def _main(argv, launched: bool) -> int:
     warnings.showwarning = _warn_in_one_line
     try:
         with _sigterm_stops_like_ctrl_c(terminated):
-            return int(args.func(args, command) or 0)
+            status = int(args.func(args, command) or 0)
+        if ctrl_c.received and status == 0:
+            # a library swallowed the KeyboardInterrupt (trimesh's optional imports catch every
+            # exception): the command ran on, but a Ctrl-C came, and success is not what to report
+            raise KeyboardInterrupt
+        return status
     except KeyboardInterrupt as exc:
         # RunInterrupted and the report's interruption say what is kept; a bare Ctrl-C, that it stopped
         said = _one_line(exc) if str(exc) and not isinstance(exc, Terminated) else "interrupted"

@@ -184,8 +184,10 @@ class LightStudy(StudyParams):
     def _check_replicates(self) -> None:
         """As every study's, except that ``revolutions`` may be as low as :data:`MIN_REVOLUTIONS`."""
         from ..config import _number
+        from ._params import _check_finite
 
         revolutions = self.revolutions
+        _check_finite("revolutions", revolutions)  # a NaN is refused as in every study, before the bounds
         object.__setattr__(self, "revolutions", 2.0)  # the shared checks hold every other study to two
         super()._check_replicates()
         object.__setattr__(self, "revolutions", _number("revolutions", revolutions, low=MIN_REVOLUTIONS, high=1000.0))
