@@ -121,6 +121,23 @@ def test_the_errors_are_compared_on_the_measured_frames_all_pipelines_detected()
         po.common_frame_errors(frames)
 
 
+def test_runs_inside_their_first_revolution_are_compared_on_their_second_halves():
+    # notebook 15's half revolution under pytest: every frame in revolution 0; frames 3-5 of 6 count
+    nan, zero = math.nan, (0,) * 6
+    frames = {
+        "active (paper)": _frames([1, 1, 1, 1, 0, 1], [0.1, 0.1, 0.1, 0.010, nan, 0.030], zero),
+        "active (best)": _frames([1, 1, 1, 1, 1, 1], [0.1, 0.1, 0.1, 0.002, 0.700, 0.004], zero),
+        "best passive": _frames([0, 0, 0, 1, 1, 1], [nan, nan, nan, 0.003, 0.800, 0.005], zero),
+    }
+    out = po.common_frame_errors(frames)
+    assert out["active (paper)"] == pytest.approx((0.020, 2 / 3))  # frames 3 and 5
+    assert out["active (best)"] == pytest.approx((0.003, 2 / 3))
+    assert out["best passive"] == pytest.approx((0.004, 2 / 3))
+    # the rule is payoff's and the light map's alike; at two revolutions it is revolution >= 1
+    assert list(po.measured_frames(frames["best passive"])["frame"]) == [3, 4, 5]
+    assert list(po.measured_frames(_frames([1] * 4, [0.0] * 4, (0, 0, 1, 1)))["frame"]) == [2, 3]
+
+
 class _Run:
     def __init__(self, frames):
         self.frames = frames

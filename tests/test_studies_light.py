@@ -103,22 +103,26 @@ def test_study_refuses_what_cannot_be_the_design():
     assert len(L.grid(L.LightStudy())) == 40 * 6 * 2 * 4
 
 
-def test_study_accepts_half_a_revolution_and_refuses_less():
-    short = L.LightStudy(points=12, calibration_seeds=(100,), replicates=2, exposures_ms=(1.0, 16.7), revolutions=0.5)
-    assert short.revolutions == 0.5 and L.LightStudy().revolutions == 2.0
-    assert {c.revolutions for c in L.grid(short)} == {0.5} and len(L.grid(short)) == 12 * 2 * 1 * 4
-    for bad in (0.49, 0.0, -1.0):
-        with pytest.raises(ValueError, match=r"revolutions must be >= 0.5"):
+def test_study_accepts_a_quarter_revolution_and_refuses_less():
+    short = L.LightStudy(points=12, calibration_seeds=(100,), replicates=2, exposures_ms=(1.0, 16.7), revolutions=0.25)
+    assert short.revolutions == 0.25 and L.LightStudy().revolutions == 2.0
+    assert {c.revolutions for c in L.grid(short)} == {0.25} and len(L.grid(short)) == 12 * 2 * 1 * 4
+    for bad in (0.249, 0.0, -1.0):
+        with pytest.raises(ValueError, match=r"revolutions must be >= 0.25"):
             L.LightStudy(revolutions=bad)
     for bad in (math.nan, math.inf):
         with pytest.raises(ValueError, match="revolutions"):
             L.LightStudy(revolutions=bad)
     with pytest.raises(TypeError, match="revolutions"):
         L.LightStudy(revolutions="2")
+    from gimbal_lab.studies.moving_drone import MovingDroneStudy
     from gimbal_lab.studies.payoff import PayoffStudy
 
+    assert PayoffStudy(revolutions=0.5).revolutions == 0.5  # notebook 15's size under pytest
+    with pytest.raises(ValueError, match=r"revolutions must be >= 0.5"):
+        PayoffStudy(revolutions=0.25)
     with pytest.raises(ValueError, match=r"revolutions must be >= 2"):  # every other study keeps two
-        PayoffStudy(revolutions=0.5)
+        MovingDroneStudy(revolutions=1.5)
 
 
 # ----------------------------------------------------------------------------------------------

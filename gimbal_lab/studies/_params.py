@@ -7,6 +7,7 @@ import math
 import os
 import tomllib
 from dataclasses import asdict, dataclass, fields
+from typing import ClassVar
 from pathlib import Path
 
 __all__ = ["StudyParams", "replicates_from_env", "REPLICATES_ENV", "report_pyplot", "md_cell", "format_p", "verdict_counts", "verdict_lines", "cpu_seconds_per_frame", "run_frames",
@@ -48,8 +49,9 @@ class StudyParams:
     first_seed : int
         Seed of the first replicate, >= 0; replicate i uses seed ``first_seed + i``.
     revolutions : float
-        Periods of the target's motion per replicate, >= 2: one acquisition revolution plus at
-        least one measured.
+        Periods of the target's motion per replicate, >= ``MIN_REVOLUTIONS`` (2: one acquisition
+        revolution plus at least one measured; a map whose notebook runs shorter under pytest
+        lowers it).
     period_s : float
         Period of the target's motion, s (2).
     fps : float
@@ -69,6 +71,8 @@ class StudyParams:
     noise_std: float = 2.0
 
     _TABLE = ""
+    #: The fewest revolutions a replicate may run (a class attribute, not a parameter).
+    MIN_REVOLUTIONS: ClassVar[float] = 2.0
 
     def _check_replicates(self) -> None:
         """Validate (and normalise) ``replicates``, ``first_seed`` and ``revolutions``, naming the field;
@@ -80,7 +84,7 @@ class StudyParams:
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("replicates", _number("replicates", self.replicates, low=2, high=1000, integer=True))
         set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
-        set_("revolutions", _number("revolutions", self.revolutions, low=2.0, high=1000.0))
+        set_("revolutions", _number("revolutions", self.revolutions, low=self.MIN_REVOLUTIONS, high=1000.0))
 
     @property
     def seeds(self) -> list[int]:

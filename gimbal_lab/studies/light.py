@@ -43,6 +43,7 @@ from ..config import Camera, Estimator, Platform, Pointing, Target, TrackingConf
 from ..platform import Vibration
 from ._params import StudyParams, format_p, md_cell, verdict_counts
 from .paper import replicate_phase_s
+from .payoff import measured_frames
 
 __all__ = ["Factor", "FACTORS", "FACTOR_NAMES", "PIPELINES", "ACTIVE", "PASSIVE", "CLAIM", "LightStudy", "Study",
            "design", "cone_for_rate", "point_config", "calibration_index", "grid", "all_configs", "run_errors",
@@ -57,9 +58,9 @@ DESCRIPTION = ("the buying rule: where a gimbal pays when every pipeline picks i
 #: The widest cone the map draws, rad: a faster target keeps it and circles with a shorter period.
 MAX_HALF_ANGLE_RAD = math.radians(20.0)
 
-#: The fewest revolutions per run the map accepts: half a revolution, notebook 16's size under pytest
-#: (docs/design.md, "Exposure as a choice, and a buying rule", As built); the full size keeps two.
-MIN_REVOLUTIONS = 0.5
+#: The fewest revolutions per run the map accepts: a quarter revolution, notebook 16's size under
+#: pytest (docs/design.md, "Exposure as a choice, and a buying rule", As built); the full size keeps two.
+MIN_REVOLUTIONS = 0.25
 
 #: The fewest points the map accepts (SALib's rbd_fast with M = 2 bootstraps on half of them; below
 #: 12 its interval collapses: docs/design.md, "The payoff map").
@@ -180,17 +181,7 @@ class LightStudy(StudyParams):
     bootstrap: int = 1000
 
     _TABLE = NAME
-
-    def _check_replicates(self) -> None:
-        """As every study's, except that ``revolutions`` may be as low as :data:`MIN_REVOLUTIONS`."""
-        from ..config import _number
-        from ._params import _check_finite
-
-        revolutions = self.revolutions
-        _check_finite("revolutions", revolutions)  # a NaN is refused as in every study, before the bounds
-        object.__setattr__(self, "revolutions", 2.0)  # the shared checks hold every other study to two
-        super()._check_replicates()
-        object.__setattr__(self, "revolutions", _number("revolutions", revolutions, low=MIN_REVOLUTIONS, high=1000.0))
+    MIN_REVOLUTIONS = MIN_REVOLUTIONS
 
     def __post_init__(self):
         from ..config import _number
@@ -343,19 +334,10 @@ def all_configs(study: LightStudy | None = None) -> list[TrackingConfig]:
 # ----------------------------------------------------------------------------------------------
 # errors, exposure choice, best pipelines
 # ----------------------------------------------------------------------------------------------
-def _measured(frames: pd.DataFrame) -> pd.DataFrame:
-    """The frames the map measures: every revolution after the first (the acquisition). A run that
-    never leaves its first revolution (notebook 16's half revolution under pytest) measures the
-    second half of its frames instead; at two revolutions the two rules are the same frames."""
-    if len(frames) and frames["revolution"].max() >= 1:
-        return frames[frames["revolution"] >= 1]
-    return frames.iloc[len(frames) // 2:]
-
-
 def run_errors(frames: pd.DataFrame, run: str) -> dict:
     """Each pipeline the run records: (mean |d_est − d_true| over the measured frames where it
     detected, m, NaN when none; how many such frames)."""
-    measured = _measured(frames)
+    measured = measured_frames(frames)
     out = {}
     for pipe, prefix in next(p for r, *_, p in RUNS if r == run):
         detected = measured[f"{prefix}detected"].to_numpy(bool)
@@ -454,11 +436,10 @@ def test_configs(index: pd.DataFrame, study: LightStudy | None = None) -> list[T
 
 
 def _pipeline_frames(frames: pd.DataFrame, pipeline: str) -> pd.DataFrame:
-    """The measured frames (:func:`_measured`) of ``pipeline`` in the form
-    :func:`gimbal_lab.studies.payoff.common_frame_errors` reads, every row marked as measured there."""
+    """The frames of ``pipeline`` (its column family) in the form
+    :func:`gimbal_lab.studies.payoff.common_frame_errors` reads; it keeps the measured ones."""
     prefix = _RUN_OF[pipeline][1]
-    frames = _measured(frames)
-    return pd.DataFrame({"frame": frames["frame"], "revolution": np.ones(len(frames), dtype=int),
+    return pd.DataFrame({"frame": frames["frame"], "revolution": frames["revolution"],
                          "detected": frames[f"{prefix}detected"], "abs_error_m": frames[f"{prefix}abs_error_m"]})
 
 
