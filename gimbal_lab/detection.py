@@ -1309,13 +1309,85 @@ def _coverage(colours: np.ndarray, inside: np.ndarray, behind: np.ndarray) -> np
     return np.where(np.isfinite(beta), 1.0 - beta, 0.0)
 
 
+class _HalfPixelGrid:
+    """The undistorted normalised coordinates of one camera's half-pixel grid, u, v = −½, 0, ½, …,
+    size − ½, filled tile by tile as windows ask for them and kept.
+
+    Each point is the one :func:`~gimbal_lab.camera.undistort` gives for it alone: for a
+    Brown–Conrady or rational lens that function works point by point (its iterations stop each
+    point on its own test; a fisheye's does not, and is not kept), so a window read from
+    the grid is bit for bit the window undistorted afresh (tested). A tile with a point that has
+    no preimage is marked, and a window that touches it is undistorted afresh, so that it fails
+    as it did (:class:`~gimbal_lab.camera.UndistortionError`).
+    """
+
+    TILE = 64  # grid points per tile side (32 px)
+
+    def __init__(self, intrinsics: Intrinsics, distortion):
+        self.intrinsics, self.distortion = intrinsics, distortion
+        rows, cols = 2 * intrinsics.height + 1, 2 * intrinsics.width + 1
+        self.x = np.empty((rows, cols))
+        self.y = np.empty((rows, cols))
+        self.state = np.zeros((-(-rows // self.TILE), -(-cols // self.TILE)), np.int8)  # 0 to do, 1 done, −1 fails
+
+    def window(self, u0: int, v0: int, u1: int, v1: int):
+        """(x, y), each (2(v1 − v0) + 1, 2(u1 − u0) + 1), of the grid points u0 − ½ … u1 − ½ by
+        v0 − ½ … v1 − ½; None when the box leaves the image or touches a failing tile."""
+        K = self.intrinsics
+        if not (0 <= u0 < u1 <= K.width and 0 <= v0 < v1 <= K.height):
+            return None
+        rows, cols = slice(2 * v0, 2 * v1 + 1), slice(2 * u0, 2 * u1 + 1)
+        T = self.TILE
+        tiles = (slice(rows.start // T, (rows.stop - 1) // T + 1), slice(cols.start // T, (cols.stop - 1) // T + 1))
+        for ti, tj in zip(*np.nonzero(self.state[tiles] == 0)):
+            self._fill(tiles[0].start + ti, tiles[1].start + tj)
+        if np.any(self.state[tiles] < 0):
+            return None
+        return self.x[rows, cols], self.y[rows, cols]
+
+    def _fill(self, ti: int, tj: int) -> None:
+        T = self.TILE
+        r0, c0 = ti * T, tj * T
+        r1, c1 = min(r0 + T, self.x.shape[0]), min(c0 + T, self.x.shape[1])
+        # the grid's values as np.arange(u0 − 0.5, u1, 0.5) makes them: exact halves
+        uu, vv = np.meshgrid(-0.5 + 0.5 * np.arange(c0, c1), -0.5 + 0.5 * np.arange(r0, r1))
+        try:
+            xy = undistort(self.intrinsics.to_normalised(np.column_stack((uu.ravel(), vv.ravel()))), self.distortion)
+        except UndistortionError:
+            self.state[ti, tj] = -1
+            return
+        self.x[r0:r1, c0:c1] = xy[:, 0].reshape(uu.shape)
+        self.y[r0:r1, c0:c1] = xy[:, 1].reshape(uu.shape)
+        self.state[ti, tj] = 1
+
+
+_HALF_PIXEL_GRIDS: dict = {}  # (intrinsics, distortion) → _HalfPixelGrid; the last few cameras only
+_HALF_PIXEL_GRIDS_KEPT = 4
+
+
+def _half_pixel_grid(intrinsics: Intrinsics, distortion) -> _HalfPixelGrid:
+    key = (intrinsics, distortion)
+    grid = _HALF_PIXEL_GRIDS.pop(key, None) or _HalfPixelGrid(intrinsics, distortion)
+    _HALF_PIXEL_GRIDS[key] = grid  # most recent last
+    while len(_HALF_PIXEL_GRIDS) > _HALF_PIXEL_GRIDS_KEPT:
+        del _HALF_PIXEL_GRIDS[next(iter(_HALF_PIXEL_GRIDS))]
+    return grid
+
+
 def _window_rays(box, intrinsics: Intrinsics, distortion):
     """Unit rays (h, w, 3) and solid angles (h, w), sr, of the pixels in ``box`` = (u0, v0, u1, v1)."""
     u0, v0, u1, v1 = box
     # pixel centres and the half-pixel points around them, undistorted to normalised coordinates
-    uu, vv = np.meshgrid(np.arange(u0 - 0.5, u1, 0.5), np.arange(v0 - 0.5, v1, 0.5))
-    xy = undistort(intrinsics.to_normalised(np.column_stack((uu.ravel(), vv.ravel()))), distortion)
-    x, y = (c.reshape(uu.shape) for c in xy.T)
+    # (read from the camera's kept grid: the same numbers, computed once per camera)
+    kept = None
+    if distortion is not None and not isinstance(distortion, KannalaBrandt):  # its inverse iterates batch-wise
+        kept = _half_pixel_grid(intrinsics, distortion).window(u0, v0, u1, v1)
+    if kept is not None:
+        x, y = kept
+    else:
+        uu, vv = np.meshgrid(np.arange(u0 - 0.5, u1, 0.5), np.arange(v0 - 0.5, v1, 0.5))
+        xy = undistort(intrinsics.to_normalised(np.column_stack((uu.ravel(), vv.ravel()))), distortion)
+        x, y = (c.reshape(uu.shape) for c in xy.T)
     centre = np.s_[1::2, 1::2]
     # Jacobian of pixel → normalised coordinates by central differences over one pixel
     dx_du, dy_du = x[1::2, 2::2] - x[1::2, :-1:2], y[1::2, 2::2] - y[1::2, :-1:2]

@@ -253,3 +253,40 @@ def test_on_the_renderers_blurred_frames_with_the_sky_behind():
             cone = locate_sphere_ellipse(detection, CAM, 0.1)
             assert np.linalg.norm(streak - truth) < RENDER_TOL_M
             assert abs(np.linalg.norm(cone) - np.linalg.norm(truth)) > 0.3
+
+
+def test_window_rays_from_the_kept_grid_are_those_undistorted_afresh():
+    # the camera's half-pixel grid is kept and read by window: bit for bit what undistorting the
+    # window's points afresh gives (the function the grid replaces, written out here), for barrel,
+    # pincushion and tangential lenses, windows anywhere (the border included), read in any order
+    from gimbal_lab import detection as det
+
+    def fresh(box, lens):
+        u0, v0, u1, v1 = box
+        uu, vv = np.meshgrid(np.arange(u0 - 0.5, u1, 0.5), np.arange(v0 - 0.5, v1, 0.5))
+        xy = undistort(CAM.to_normalised(np.column_stack((uu.ravel(), vv.ravel()))), lens)
+        return xy[:, 0].reshape(uu.shape), xy[:, 1].reshape(uu.shape)
+
+    rng = np.random.default_rng(7)
+    for lens in (BrownConrady(k1=-0.25, k2=0.05, p1=0.001, p2=-0.0005), BrownConrady(k1=0.2), BrownConrady.default()):
+        det._HALF_PIXEL_GRIDS.clear()
+        boxes = [(0, 0, 640, 480), (600, 440, 640, 480), (0, 0, 1, 1)]
+        for _ in range(12):
+            u0, v0 = int(rng.integers(0, 600)), int(rng.integers(0, 440))
+            boxes.insert(1, (u0, v0, u0 + int(rng.integers(1, 41)), v0 + int(rng.integers(1, 41))))
+        for box in boxes:
+            x, y = det._HalfPixelGrid.window(det._half_pixel_grid(CAM, lens), *box)
+            fx, fy = fresh(box, lens)
+            assert np.array_equal(x, fx) and np.array_equal(y, fy), (lens, box)
+            rays, omega = det._window_rays(box, CAM, lens)
+            assert rays.shape == (box[3] - box[1], box[2] - box[0], 3) and np.all(omega > 0)
+    # a box beyond the image is undistorted afresh; a lens that folds inside the image fails as before
+    grid = det._half_pixel_grid(CAM, BrownConrady(k1=-0.25))
+    assert grid.window(630, 470, 641, 480) is None and grid.window(-1, 0, 5, 5) is None
+    folding = BrownConrady(k1=0.3, k2=-1.5)  # its radial image peaks at r = 0.56 inside the corners (0.72)
+    with pytest.raises(det.UndistortionError):
+        fresh((0, 0, 640, 480), folding)
+    with pytest.raises(det.UndistortionError):
+        det._window_rays((0, 0, 640, 480), CAM, folding)
+    assert det._half_pixel_grid(CAM, folding).window(0, 0, 640, 480) is None
+    assert len(det._HALF_PIXEL_GRIDS) <= det._HALF_PIXEL_GRIDS_KEPT
