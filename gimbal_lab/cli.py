@@ -57,6 +57,7 @@ import signal  # noqa: E402
 import threading  # noqa: E402
 
 from .argtypes import length_m, nonnegative_int, positive_int  # noqa: F401 (the commands' types, kept here too)
+from . import interrupts  # noqa: E402
 
 # This process runs studies itself when asked for one job; numpy's BLAS must be limited before
 # numpy is imported (see gimbal_lab.runner.CHILD_THREAD_LIMITS). A value already set is kept.
@@ -193,10 +194,14 @@ class _CtrlC:
     import, raises an ImportError that no longer names it)."""
 
     def __init__(self):
-        self.received = False
+        interrupts.clear()
+
+    @property
+    def received(self) -> bool:
+        return interrupts.received()
 
     def __call__(self, signum, frame):
-        self.received = True
+        interrupts.note_interrupt()  # commands stop on it after imports that may swallow the exception
         raise KeyboardInterrupt
 
 

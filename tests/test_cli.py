@@ -241,6 +241,31 @@ def test_ctrl_c_says_what_a_rerun_reuses(cache, capsys, tmp_path, monkeypatch, t
         assert "run the same command again to resume" not in err and "without --no-cache" in err
 
 
+def test_a_ctrl_c_an_import_swallowed_stops_the_command_before_any_run(capsys, tmp_path, monkeypatch, tiny):
+    """The SIGINT handler ran while the study's modules were imported, and the import caught the
+    KeyboardInterrupt (as trimesh's optional imports catch every exception): the command stops
+    right after, with nothing run and exit 130, instead of running the study to its end."""
+    from gimbal_lab import interrupts
+    from gimbal_lab.studies import cli as studies_cli
+
+    real_load, runs = studies_cli.load, []
+
+    def load_swallowing_a_ctrl_c(name):
+        module = real_load(name)
+        interrupts.note_interrupt()  # what the handler does; its exception never reaches the command
+        return module
+
+    monkeypatch.setattr(studies_cli, "load", load_swallowing_a_ctrl_c)
+    monkeypatch.setattr(runner, "run", lambda *a, **k: runs.append(1) or [])
+    status, _, err = call(["run", "paper", "--config", str(tiny), "--out", str(tmp_path), "--quiet"], capsys)
+    assert status == 130 and runs == [] and not (tmp_path / "paper").exists()
+    assert_one_line(err, "gimbal-lab run: interrupted")
+    interrupts.clear()
+    monkeypatch.setattr(studies_cli, "load", real_load)  # a command after it starts afresh
+    status, _, err = call(["run", "--list"], capsys)
+    assert status == 0
+
+
 def test_sigterm_stops_a_sweep_like_ctrl_c_keeps_its_runs_and_exits_143(capsys, tmp_path, monkeypatch, tiny):
     """SIGTERM lands as the third run of a sweep in this process starts: the two finished runs are
     stored, the line says what a rerun reuses, the exit status is 143, and the handler the

@@ -6,6 +6,7 @@ import logging
 import os
 from pathlib import Path
 
+from .. import interrupts
 from ..argtypes import int_at_least, positive_int
 from . import STUDIES, load
 
@@ -107,6 +108,10 @@ def _run(args, parser) -> int:
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     from ..runner import ResultsStore, dask_executor, default_jobs, default_store_root
+
+    # the study's and the runner's imports are done: a Ctrl-C one of them swallowed (trimesh's
+    # optional imports catch every exception) stops the command here, before anything runs
+    interrupts.stop_if_interrupted()
 
     if args.store is not None:
         if not args.store.strip():
