@@ -52,7 +52,6 @@ os.environ.setdefault("LP_NUM_THREADS", "1")
 import argparse
 import datetime
 import json
-import platform
 import shutil
 import statistics
 import subprocess
@@ -60,6 +59,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _common import machine
 
 REPO = Path(__file__).resolve().parents[1]
 #: What a worker's reply line starts with (anything else a library prints on stdout is ignored).
@@ -270,18 +271,6 @@ def _git(*args) -> str:
     return subprocess.run(["git", "-C", str(REPO), *args], check=True, capture_output=True, text=True).stdout.strip()
 
 
-def _machine() -> str:
-    model = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
-
-
 def _load() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -397,7 +386,7 @@ def report(args, info: dict, measured: list, load_before: str, load_after: str, 
     share = sum(r["cpu_s"] for r in rows) / max(sum(r["wall_s"] for r in rows), 1e-9)
     print(f"load average (1, 5, 15 min) before {load_before}, after {load_after}; {elapsed_s / 60:.1f} min of runs, "
           f"the timed runs' CPU / wall {share:.2f}")
-    print(f"machine: {_machine()}")
+    print(f"machine: {machine()}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC")
     dirty = _git("status", "--porcelain", "--", "gimbal_lab").splitlines()
     print(f"baseline {args.baseline} = {args.baseline_commit[:10]}; current {_git('rev-parse', 'HEAD')[:10]}"

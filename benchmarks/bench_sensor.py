@@ -33,13 +33,14 @@ import argparse
 import datetime
 import importlib
 import importlib.util
-import platform
 import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from _common import cpu_model
 
 from gimbal_lab import scene, sensor
 from gimbal_lab.camera import Intrinsics
@@ -69,16 +70,6 @@ def render_frame() -> np.ndarray:
         T_world_target = np.eye(4)
         T_world_target[:3, 3] = T_WORLD_CAM[:3, :3] @ (0.0, 0.0, 3.0) + T_WORLD_CAM[:3, 3]
         return renderer.render(T_WORLD_CAM, T_world_target)
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def main() -> None:
