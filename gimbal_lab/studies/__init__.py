@@ -19,7 +19,7 @@ __all__ = ["STUDIES", "load"]
 STUDIES = {"paper": "gimbal_lab.studies.paper", "moving-drone": "gimbal_lab.studies.moving_drone",
            "lens-sweep": "gimbal_lab.studies.lens_sweep", "occlusion": "gimbal_lab.studies.occlusion",
            "link": "gimbal_lab.studies.link", "payoff": "gimbal_lab.studies.payoff",
-           "light": "gimbal_lab.studies.light"}
+           "light": "gimbal_lab.studies.light", "exposure": "gimbal_lab.studies.exposure"}
 
 
 def load(name: str):

@@ -140,6 +140,27 @@ def _float_tuple(name: str, value) -> tuple:
     return tuple(out)
 
 
+def check_choice_params(study) -> None:
+    """Validate (and normalise) a study's ``calibration_seeds`` and ``exposures_ms``, the fields of
+    every study whose pipelines choose their exposure (after its ``fps`` and ``replicates``)."""
+    seeds = _float_tuple("calibration_seeds", study.calibration_seeds)
+    if not seeds or any(s != int(s) or s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise ValueError(f"calibration_seeds must be distinct integers >= 0, at least one, got "
+                         f"{study.calibration_seeds!r}")
+    seeds = tuple(int(s) for s in seeds)
+    shared = sorted(set(seeds) & set(study.seeds))
+    if shared:
+        raise ValueError(f"calibration_seeds {shared} are also test seeds ({study.seeds[0]}–{study.seeds[-1]}): "
+                         "nothing may be chosen on the seeds that test it")
+    object.__setattr__(study, "calibration_seeds", seeds)
+    exposures = _float_tuple("exposures_ms", study.exposures_ms)
+    frame_ms = 1000.0 / study.fps
+    if not exposures or any(not 0.0 < e <= frame_ms for e in exposures) or len(set(exposures)) != len(exposures):
+        raise ValueError(f"exposures_ms must be distinct numbers in (0, {frame_ms:.4g}] ms (the frame period), "
+                         f"at least one, got {study.exposures_ms!r}")
+    object.__setattr__(study, "exposures_ms", tuple(sorted(exposures)))
+
+
 @dataclass(frozen=True)
 class LightStudy(StudyParams):
     """Parameters of the buying-rule map (docs/design.md, "Exposure as a choice, and a buying rule").
@@ -198,22 +219,7 @@ class LightStudy(StudyParams):
         if self.points < 2 * (2 * self.harmonics + 2):
             raise ValueError(f"points must be at least 4 × harmonics + 4 = {4 * self.harmonics + 4} (rbd_fast's "
                              f"bootstrap resamples half of them), got {self.points}")
-        seeds = _float_tuple("calibration_seeds", self.calibration_seeds)
-        if not seeds or any(s != int(s) or s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-            raise ValueError(f"calibration_seeds must be distinct integers >= 0, at least one, got "
-                             f"{self.calibration_seeds!r}")
-        seeds = tuple(int(s) for s in seeds)
-        shared = sorted(set(seeds) & set(self.seeds))
-        if shared:
-            raise ValueError(f"calibration_seeds {shared} are also test seeds ({self.seeds[0]}–{self.seeds[-1]}): "
-                             "nothing may be chosen on the seeds that test it")
-        set_("calibration_seeds", seeds)
-        exposures = _float_tuple("exposures_ms", self.exposures_ms)
-        frame_ms = 1000.0 / self.fps
-        if not exposures or any(not 0.0 < e <= frame_ms for e in exposures) or len(set(exposures)) != len(exposures):
-            raise ValueError(f"exposures_ms must be distinct numbers in (0, {frame_ms:.4g}] ms (the frame period), "
-                             f"at least one, got {self.exposures_ms!r}")
-        set_("exposures_ms", tuple(sorted(exposures)))
+        check_choice_params(self)
 
     @property
     def exposures_s(self) -> tuple:
