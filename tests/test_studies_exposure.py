@@ -137,15 +137,15 @@ def test_sp_holds_only_against_every_passive_and_names_the_one_that_decides():
     choices, index, results, best = _study_of_two_pipelines(active, far)
     v = X.check_hypotheses(X.pair_table(choices, index, results), best)
     assert len(v) == 24 and v["p_holm"].notna().sum() == 2  # one condition, active (best) only
-    sp2 = v[(v["id"] == "SP2′") & (v["condition"] == 0)].iloc[0]
-    bp2 = v[(v["id"] == "BP2′") & (v["condition"] == 0)].iloc[0]
+    sp2 = v[(v["id"] == "SP2′") & (v["condition"] == "hover, 300 lx")].iloc[0]
+    bp2 = v[(v["id"] == "BP2′") & (v["condition"] == "hover, 300 lx")].iloc[0]
     assert sp2["verdict"] == stats.HOLDS and sp2["k"] == 3 and bp2["verdict"] == stats.HOLDS
     assert bp2["b"] == "fixed, streak" and bp2["mean_b"] == pytest.approx(np.mean([np.mean(f[0]) for f in far]))
     # the streak localiser as good as the gimbal: SP2' does not hold, named; BP2' against it too
     close = [(tuple(np.array(a) + 0.00001 * rng.standard_normal(4)), f[1], f[2]) for a, f in zip(active, far)]
     choices, index, results, best = _study_of_two_pipelines(active, close)
     v = X.check_hypotheses(X.pair_table(choices, index, results), best)
-    sp2 = v[(v["id"] == "SP2′") & (v["condition"] == 0)].iloc[0]
+    sp2 = v[(v["id"] == "SP2′") & (v["condition"] == "hover, 300 lx")].iloc[0]
     assert sp2["verdict"] == stats.DOES_NOT_HOLD and sp2["b"] == "fixed, streak"
     # untested claims: the conditions without runs, and active (paper), which chose nothing here
     untested = v[v["n"] == 0]
@@ -161,8 +161,8 @@ def test_bp_compares_with_the_best_passive_chosen_on_calibration_not_the_best_on
                 tuple(0.002 + 0.0001 * rng.standard_normal(4))) for _ in range(5)]
     choices, index, results, best = _study_of_two_pipelines(active, passive, best_passive="fixed, streak")
     v = X.check_hypotheses(X.pair_table(choices, index, results), best).set_index(["id", "condition"])
-    assert v.loc[("BP2′", 0), "verdict"] == stats.HOLDS and v.loc[("BP2′", 0), "b"] == "fixed, streak"
-    assert v.loc[("SP2′", 0), "verdict"] == stats.DOES_NOT_HOLD and v.loc[("SP2′", 0), "b"] == "fixed, circle"
+    assert v.loc[("BP2′", "hover, 300 lx"), "verdict"] == stats.HOLDS and v.loc[("BP2′", "hover, 300 lx"), "b"] == "fixed, streak"
+    assert v.loc[("SP2′", "hover, 300 lx"), "verdict"] == stats.DOES_NOT_HOLD and v.loc[("SP2′", "hover, 300 lx"), "b"] == "fixed, circle"
 
 
 def test_the_family_is_the_24_verdicts_under_holm():

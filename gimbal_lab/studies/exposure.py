@@ -228,7 +228,8 @@ def pair_table(choices: pd.DataFrame, index: pd.DataFrame, results) -> pd.DataFr
 
 
 def check_hypotheses(pairs: pd.DataFrame, best: pd.DataFrame) -> pd.DataFrame:
-    """The 24 verdicts (:data:`CLAIMS` × conditions), held to the family's 5 % by Holm.
+    """The 24 verdicts (:data:`CLAIMS` × conditions, ``condition`` named "motion, light lx"), held
+    to the family's 5 % by Holm.
 
     SP′ is the intersection–union verdict over the passive pipelines with a choice (``b`` names
     the one that decides it, ``k`` how many); BP′ the three-way rule against the condition's best
@@ -240,8 +241,8 @@ def check_hypotheses(pairs: pd.DataFrame, best: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for cid, active, against in CLAIMS:
         for c in table.index:
-            where = {"id": cid, "condition": int(c), "motion": table.loc[c, "motion"],
-                     "light_lux": float(table.loc[c, "light_lux"]), "a": active}
+            motion, lux = table.loc[c, "motion"], float(table.loc[c, "light_lux"])
+            where = {"id": cid, "condition": f"{motion}, {lux:g} lx", "motion": motion, "light_lux": lux, "a": active}
             p = pairs[(pairs["condition"] == c) & (pairs["active"] == active)]
             if against == "every passive":
                 names = [n for n in _light.PASSIVE if (p["passive"] == n).any()]
