@@ -188,3 +188,17 @@ def test_the_command_line_knows_the_study_and_refuses_bad_parameters_before_any_
     with pytest.raises(SystemExit) as exc:
         cli.main(["run", "exposure", "--out", str(tmp_path / "out"), "--config", str(config)])
     assert exc.value.code == 2 and "calibration_seeds [200] are also test seeds" in capsys.readouterr().err
+
+
+def test_maps_refuse_the_inherited_parameters_they_do_not_use():
+    # a study parameter that is set and does nothing would mislead: the sensor model sets the
+    # noise of the light map and of this study; the payoff map samples frame rate, latency and noise
+    from gimbal_lab.studies.payoff import PayoffStudy
+
+    for make, name, value in ((X.ExposureStudy, "noise_std", 4.0), (L.LightStudy, "noise_std", 0.5),
+                              (PayoffStudy, "fps", 60.0), (PayoffStudy, "latency_frames", 2),
+                              (PayoffStudy, "noise_std", 3.0)):
+        with pytest.raises(ValueError, match=rf"^{name} is not used by this study"):
+            make(**{name: value})
+        assert getattr(make(), name) == getattr(make(**{name: getattr(make(), name)}), name)  # the default is fine
+    assert X.ExposureStudy(fps=25.0).fps == 25.0 and L.LightStudy(fps=25.0).fps == 25.0  # used: accepted

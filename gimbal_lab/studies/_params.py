@@ -86,6 +86,15 @@ class StudyParams:
         set_("first_seed", _number("first_seed", self.first_seed, low=0, high=2**62, integer=True))
         set_("revolutions", _number("revolutions", self.revolutions, low=self.MIN_REVOLUTIONS, high=1000.0))
 
+    def _refuse_unused(self, names: tuple, why: str) -> None:
+        """Refuse a value other than the default for fields this study inherits but does not use
+        (a parameter that is set and does nothing would mislead), naming the field and why."""
+        defaults = {f.name: f.default for f in fields(self)}
+        for name in names:
+            if getattr(self, name) != defaults[name]:
+                raise ValueError(f"{name} is not used by this study ({why}); leave it out, got "
+                                 f"{getattr(self, name)!r}")
+
     @property
     def seeds(self) -> list[int]:
         """Replicate i runs with seed ``first_seed + i``."""

@@ -70,7 +70,7 @@ class ExposureStudy(StudyParams):
         notebook 17's size under pytest (a run inside its first revolution measures its second half).
     period_s, fps, latency_frames :
         As every study's: the circle's period (2 s), 30 frames/s, one frame of latency.
-        ``noise_std`` is not used: the sensor model sets the noise.
+        ``noise_std`` is not used (the sensor model sets the noise) and is refused when set.
     """
 
     replicates: int = 5
@@ -85,6 +85,7 @@ class ExposureStudy(StudyParams):
         from ..config import _number
 
         self._check_replicates()
+        self._refuse_unused(("noise_std",), "the sensor model sets the noise")
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("period_s", _number("period_s", self.period_s, low=0.0, high=1000.0, low_open=True))
         set_("fps", _number("fps", self.fps, low=1.0, high=1000.0))

@@ -188,8 +188,8 @@ class LightStudy(StudyParams):
         the map accepts down to :data:`MIN_REVOLUTIONS`, notebook 16's size under pytest.
     period_s, fps, latency_frames :
         As every study's: the cone's period before a fast
-        target shortens it (2 s), 30 frames/s, one frame of latency. ``noise_std`` is not used:
-        the sensor model sets the noise.
+        target shortens it (2 s), 30 frames/s, one frame of latency. ``noise_std`` is not used
+        (the sensor model sets the noise) and is refused when set.
     """
 
     replicates: int = 5
@@ -208,6 +208,7 @@ class LightStudy(StudyParams):
         from ..config import _number
 
         self._check_replicates()
+        self._refuse_unused(("noise_std",), "the sensor model sets the noise")
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("points", _number("points", self.points, low=MIN_POINTS, high=100_000, integer=True))
         set_("design_seed", _number("design_seed", self.design_seed, low=0, high=2**32 - 1, integer=True))

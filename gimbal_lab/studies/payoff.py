@@ -106,7 +106,8 @@ class PayoffStudy(StudyParams):
         Replicates per point, >= 2 (5 at full size).
     first_seed, period_s :
         As every study's (:class:`~gimbal_lab.studies._params.StudyParams`). The inherited
-        ``fps``, ``latency_frames`` and ``noise_std`` are not used: the map samples them.
+        ``fps``, ``latency_frames`` and ``noise_std`` are not used (the map samples them) and are
+        refused when set.
     points : int
         Points of the Latin hypercube, >= :data:`MIN_POINTS` (12: ``rbd_fast``'s bootstrap interval
         collapses below); 64 at full size.
@@ -135,6 +136,7 @@ class PayoffStudy(StudyParams):
         from ..config import _number
 
         self._check_replicates()
+        self._refuse_unused(("fps", "latency_frames", "noise_std"), "the map samples them at each point")
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("points", _number("points", self.points, low=MIN_POINTS, high=100_000, integer=True))
         set_("design_seed", _number("design_seed", self.design_seed, low=0, high=2**32 - 1, integer=True))
