@@ -85,7 +85,7 @@ TRACK = ["track", "in.mp4", "--target", "aruco", "--calibration", "cam.yaml", "-
 
 @pytest.mark.parametrize("argv, message", [
     (["run", "paper", "--jobs", "0"], "gimbal-lab run: error: argument --jobs: must be an integer >= 1, got '0'"),
-    (["run", "nosuch"], "unknown study 'nosuch'; known studies: lens-sweep, light, link, moving-drone, occlusion, paper, payoff"),
+    (["run", "nosuch"], "unknown study 'nosuch'; known studies: exposure, lens-sweep, light, link, moving-drone, occlusion, paper, payoff"),
     (["run", "paper", "--points", "12"], "gimbal-lab run: error: --points sets a map's points (payoff, light); paper has none"),
     (["run", "payoff", "--points", "9"], "gimbal-lab run: error: argument --points: must be an integer >= 12, got '9'"),
     (["run", "payoff", "--points", "abc"], "argument --points: must be an integer >= 12, got 'abc'"),
