@@ -439,3 +439,40 @@ def test_too_few_points_with_a_response_leave_the_ranking_out_not_the_report():
                        [r for r, k in zip(results, keep) if k], study)
     assert tables["ranking"]["s1"].isna().all() and int(tables["ranking"]["points"].iloc[0]) == 3
     assert "Not ranked: rbd_fast needs at least 12 points" in L.claims_markdown(tables, study)
+
+
+def test_the_command_runs_the_calibration_then_the_tests_its_choices_call_for(tmp_path, monkeypatch):
+    from gimbal_lab import runner
+
+    study = L.LightStudy(points=12, calibration_seeds=(100,), replicates=3, exposures_ms=(1, 4, 16.7), bootstrap=50)
+    calibration, tests, results = _fake_map(study)
+    calls = []
+
+    def fake_run(configs, **kwargs):
+        calls.append((list(configs), kwargs["desc"]))
+        return calibration if len(calls) == 1 else results
+
+    monkeypatch.setattr(runner, "run", fake_run)
+    out = L.run_study(study, tmp_path, progress=False)
+    assert [desc for _, desc in calls] == ["light map: calibration", "light map: test"]
+    assert calls[0][0] == L.grid(study)  # the calibration grid first, then the runs its choices call for
+    assert calls[1][0] == L.test_configs(tests, study)
+    expected = L.analyse(calibration, tests, results, study)["verdicts"]
+    assert list(out["verdicts"]["verdict_holm"]) == list(expected["verdict_holm"]) and len(expected) == 12
+    assert (tmp_path / "light" / "claims.md").is_file() and (tmp_path / "light" / "points.csv").is_file()
+
+
+def test_a_calibration_table_refuses_results_that_are_not_its_grids():
+    study = L.LightStudy(points=12, calibration_seeds=(100,), replicates=2, exposures_ms=(1, 16.7))
+    calibration, _, _ = _fake_map(study)
+    for results in (calibration[:-1], calibration + calibration[:1]):
+        with pytest.raises(ValueError, match=f"expected {len(calibration)} calibration runs"):
+            L.calibration_table(results, study)
+    from gimbal_lab.studies import exposure as X
+
+    small = X.ExposureStudy(calibration_seeds=(100,), replicates=2, exposures_ms=(1, 16.7), revolutions=0.25)
+    n = len(X.calibration_index(small))
+    with pytest.raises(ValueError, match=f"expected {n} calibration runs"):
+        X.calibration_table(calibration[: n - 1], small)
+    table = X.calibration_table(calibration[:n], small)  # the condition is the choice code's "point"
+    assert list(table["point"].unique()) == list(X.conditions()["condition"])

@@ -29,8 +29,8 @@ import pandas as pd
 from .. import stats
 from ..config import Camera, Estimator, TrackingConfig
 from . import light as _light
-from ._params import StudyParams, format_p, md_cell, verdict_counts
-from .moving_drone import MovingDroneStudy
+from ._params import format_p, md_cell, verdict_counts
+from .moving_drone import _POINTING, MovingDroneStudy
 from .payoff import common_frame_errors
 
 __all__ = ["ExposureStudy", "Study", "MOTIONS", "LIGHTS_LUX", "CLAIMS", "conditions", "config",
@@ -51,7 +51,7 @@ CLAIMS = (("SP1′", "active (paper)", "every passive"), ("SP2′", "active (bes
 
 
 @dataclass(frozen=True)
-class ExposureStudy(StudyParams):
+class ExposureStudy(_light.ChoiceStudyParams):
     """Parameters of the moving drone with exposure as a choice.
 
     Parameters
@@ -73,29 +73,7 @@ class ExposureStudy(StudyParams):
         ``noise_std`` is not used (the sensor model sets the noise) and is refused when set.
     """
 
-    replicates: int = 5
-    first_seed: int = 200
-    calibration_seeds: tuple = (100, 101)
-    exposures_ms: tuple = (0.5, 1.0, 2.0, 4.0, 8.0, 16.7)
-
     _TABLE = NAME
-    MIN_REVOLUTIONS = 0.25
-
-    def __post_init__(self):
-        from ..config import _number
-
-        self._check_replicates()
-        self._refuse_unused(("noise_std",), "the sensor model sets the noise")
-        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
-        set_("period_s", _number("period_s", self.period_s, low=0.0, high=1000.0, low_open=True))
-        set_("fps", _number("fps", self.fps, low=1.0, high=1000.0))
-        set_("latency_frames", _number("latency_frames", self.latency_frames, low=1, high=100, integer=True))
-        _light.check_choice_params(self)
-
-    @property
-    def exposures_s(self) -> tuple:
-        """The exposure set E, s, shortest first."""
-        return tuple(1e-3 * e for e in self.exposures_ms)
 
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
@@ -112,7 +90,7 @@ def conditions() -> pd.DataFrame:
 
 
 #: The moving drone's mount for each pointing kind of the map's runs.
-_MOUNT_OF = {"paper": "active", "fixed": "fixed", "stabilised": "stabilised"}
+_MOUNT_OF = {kind: mount for mount, kind in _POINTING.items()}
 
 
 def config(condition: int, pipeline: str, exposure_s: float, seed: int, study: ExposureStudy | None = None
@@ -159,20 +137,10 @@ def all_configs(study: ExposureStudy | None = None) -> list[TrackingConfig]:
 
 
 def calibration_table(results, study: ExposureStudy | None = None) -> pd.DataFrame:
-    """One row per calibration run and pipeline it records: point (= condition, as the map's choice
-    code reads it), pipeline, exposure_s, seed, error_m (mean over the measured frames where it
-    detected; NaN when none) and frames."""
-    study = study or ExposureStudy()
-    index = calibration_index(study)
-    results = list(results)
-    if len(results) != len(index):
-        raise ValueError(f"expected {len(index)} calibration runs, got {len(results)}")
-    rows = []
-    for r, result in zip(index.itertuples(), results):
-        for pipe, (error, n) in _light.run_errors(result.frames, r.run).items():
-            rows.append({"point": r.condition, "pipeline": pipe, "exposure_s": r.exposure_s, "seed": r.seed,
-                         "error_m": error, "frames": n})
-    return pd.DataFrame(rows)
+    """One row per calibration run and pipeline it records (:func:`gimbal_lab.studies.light.choice_table`),
+    the condition in the column ``point``, as the map's choice code reads it. ``results`` are
+    :func:`grid`'s runs in its order."""
+    return _light.choice_table(calibration_index(study or ExposureStudy()), results, unit="condition")
 
 
 def test_index(choices: pd.DataFrame, study: ExposureStudy | None = None) -> pd.DataFrame:
@@ -208,16 +176,17 @@ def pair_table(choices: pd.DataFrame, index: pd.DataFrame, results) -> pd.DataFr
     chosen = {(int(r.point), r.pipeline): float(r.exposure_s) for r in choices.dropna(subset=["exposure_s"]).itertuples()}
     rows = []
     for (c, seed) in sorted({(k[0], k[1]) for k in frames}):
-        def of(pipe):
+        of = {}  # each pipeline's frames at its chosen exposure, None for a pipeline without a choice
+        for pipe in _light.PIPELINES:
             e = chosen.get((c, pipe))
-            return None if e is None else _light._pipeline_frames(frames[(c, seed, _light._RUN_OF[pipe][0], e)], pipe)
-
+            of[pipe] = None if e is None else _light._pipeline_frames(frames[(c, seed, _light._RUN_OF[pipe][0], e)],
+                                                                      pipe)
         for active in _light.ACTIVE:
-            fa = of(active)
+            fa = of[active]
             if fa is None:
                 continue
             for passive in _light.PASSIVE:
-                fp = of(passive)
+                fp = of[passive]
                 if fp is None:
                     continue
                 errors = common_frame_errors({"active": fa, "passive": fp})
@@ -337,21 +306,11 @@ def run_study(study: ExposureStudy, out, *, store=None, executor=None, jobs=None
     """``gimbal-lab run exposure``: the calibration runs, the choices, the test runs (reusing
     ``store``) and the report in ``out/exposure``. ``clips`` is accepted for the command's
     uniformity; the study writes none."""
-    from pathlib import Path
-
-    from ..outputs import ReportFolder
     from . import report as _report
 
-    ReportFolder(Path(out) / NAME, "the report folder").check()  # before the calibration runs
-    from ..runner import run
+    def plan(calibration):
+        index = test_index(_light.choose_exposures(calibration_table(calibration, study)), study)
+        return index, test_configs(index, study)
 
-    calibration = run(grid(study), store=store, executor=executor, jobs=jobs, progress=progress,
-                      desc="exposure: calibration")
-    choices = _light.choose_exposures(calibration_table(calibration, study))
-    index = test_index(choices, study)
-
-    def report(test_results, params):
-        return make_report(calibration, index, test_results, params)
-
-    return _report.run_and_report(NAME, "exposure: test", test_configs(index, study), report, study, out,
-                                  store=store, executor=executor, jobs=jobs, progress=progress)
+    return _report.run_with_choices(NAME, "exposure", grid(study), plan, make_report, study, out, store=store,
+                                    executor=executor, jobs=jobs, progress=progress)

@@ -162,7 +162,38 @@ def check_choice_params(study) -> None:
 
 
 @dataclass(frozen=True)
-class LightStudy(StudyParams):
+class ChoiceStudyParams(StudyParams):
+    """What every study whose pipelines choose their exposure shares (:class:`LightStudy`,
+    :class:`gimbal_lab.studies.exposure.ExposureStudy`): test seeds from 200, the calibration
+    seeds (100, 101), the exposure set E, runs down to :data:`MIN_REVOLUTIONS`, the sensor model's
+    noise instead of ``noise_std`` (refused when set). Each subclass documents its fields."""
+
+    replicates: int = 5
+    first_seed: int = 200
+    calibration_seeds: tuple = (100, 101)
+    exposures_ms: tuple = (0.5, 1.0, 2.0, 4.0, 8.0, 16.7)
+
+    MIN_REVOLUTIONS = MIN_REVOLUTIONS
+
+    def __post_init__(self):
+        from ..config import _number
+
+        self._check_replicates()
+        self._refuse_unused(("noise_std",), "the sensor model sets the noise")
+        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_("period_s", _number("period_s", self.period_s, low=0.0, high=1000.0, low_open=True))
+        set_("fps", _number("fps", self.fps, low=1.0, high=1000.0))
+        set_("latency_frames", _number("latency_frames", self.latency_frames, low=1, high=100, integer=True))
+        check_choice_params(self)
+
+    @property
+    def exposures_s(self) -> tuple:
+        """The exposure set E, s, shortest first."""
+        return tuple(1e-3 * e for e in self.exposures_ms)
+
+
+@dataclass(frozen=True)
+class LightStudy(ChoiceStudyParams):
     """Parameters of the buying-rule map (docs/design.md, "Exposure as a choice, and a buying rule").
 
     Parameters
@@ -192,40 +223,25 @@ class LightStudy(StudyParams):
         (the sensor model sets the noise) and is refused when set.
     """
 
-    replicates: int = 5
-    first_seed: int = 200
-    calibration_seeds: tuple = (100, 101)
-    exposures_ms: tuple = (0.5, 1.0, 2.0, 4.0, 8.0, 16.7)
     points: int = 40
     design_seed: int = 40
     harmonics: int = 2
     bootstrap: int = 1000
 
     _TABLE = NAME
-    MIN_REVOLUTIONS = MIN_REVOLUTIONS
 
     def __post_init__(self):
         from ..config import _number
 
-        self._check_replicates()
-        self._refuse_unused(("noise_std",), "the sensor model sets the noise")
+        super().__post_init__()
         set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
         set_("points", _number("points", self.points, low=MIN_POINTS, high=100_000, integer=True))
         set_("design_seed", _number("design_seed", self.design_seed, low=0, high=2**32 - 1, integer=True))
         set_("harmonics", _number("harmonics", self.harmonics, low=1, high=50, integer=True))
         set_("bootstrap", _number("bootstrap", self.bootstrap, low=10, high=100_000, integer=True))
-        set_("period_s", _number("period_s", self.period_s, low=0.0, high=1000.0, low_open=True))
-        set_("fps", _number("fps", self.fps, low=1.0, high=1000.0))
-        set_("latency_frames", _number("latency_frames", self.latency_frames, low=1, high=100, integer=True))
         if self.points < 2 * (2 * self.harmonics + 2):
             raise ValueError(f"points must be at least 4 × harmonics + 4 = {4 * self.harmonics + 4} (rbd_fast's "
                              f"bootstrap resamples half of them), got {self.points}")
-        check_choice_params(self)
-
-    @property
-    def exposures_s(self) -> tuple:
-        """The exposure set E, s, shortest first."""
-        return tuple(1e-3 * e for e in self.exposures_ms)
 
 
 #: The study's parameters class (``gimbal-lab run`` looks for ``Study`` in every study module).
@@ -353,21 +369,28 @@ def run_errors(frames: pd.DataFrame, run: str) -> dict:
     return out
 
 
-def calibration_table(results, study: LightStudy | None = None) -> pd.DataFrame:
-    """One row per point, pipeline, exposure and calibration seed: error_m (the run's mean error
-    over the measured frames where the pipeline detected) and frames (how many). ``results`` are
-    :func:`grid`'s runs in its order."""
-    study = study or LightStudy()
-    index = calibration_index(study)
+def choice_table(index: pd.DataFrame, results, unit: str = "point") -> pd.DataFrame:
+    """One row per calibration run of ``index`` and pipeline it records: point (the run's ``unit``
+    column: a point of the map, a condition of :mod:`gimbal_lab.studies.exposure`), pipeline,
+    exposure_s, seed, error_m (the run's mean error over the measured frames where the pipeline
+    detected; NaN when none) and frames (how many): what :func:`choose_exposures` reads.
+    ``results`` are the runs of ``index``'s rows, in its order."""
     results = list(results)
     if len(results) != len(index):
-        raise ValueError(f"expected {len(index)} calibration runs (the map's grid), got {len(results)}")
+        raise ValueError(f"expected {len(index)} calibration runs (one per row of the calibration index), "
+                         f"got {len(results)}")
     rows = []
     for r, result in zip(index.itertuples(), results):
         for pipe, (error, n) in run_errors(result.frames, r.run).items():
-            rows.append({"point": r.point, "pipeline": pipe, "exposure_s": r.exposure_s, "seed": r.seed,
+            rows.append({"point": getattr(r, unit), "pipeline": pipe, "exposure_s": r.exposure_s, "seed": r.seed,
                          "error_m": error, "frames": n})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=["point", "pipeline", "exposure_s", "seed", "error_m", "frames"])
+
+
+def calibration_table(results, study: LightStudy | None = None) -> pd.DataFrame:
+    """One row per point, pipeline, exposure and calibration seed (:func:`choice_table`).
+    ``results`` are :func:`grid`'s runs in its order."""
+    return choice_table(calibration_index(study or LightStudy()), results)
 
 
 def choose_exposures(table: pd.DataFrame) -> pd.DataFrame:
@@ -779,31 +802,26 @@ def run_map(study: LightStudy, *, store=None, executor=None, jobs=None, progress
 
     calibration = run(grid(study), store=store, executor=executor, jobs=jobs, progress=progress,
                       desc="light map: calibration")
-    best = best_pipelines(choose_exposures(calibration_table(calibration, study)))
-    index = test_index(best, study)
+    index = _plan_tests(calibration, study)
     test = run(test_configs(index, study), store=store, executor=executor, jobs=jobs, progress=progress,
                desc="light map: test")
     return {"calibration": calibration, "test_index": index, "test": test}
+
+
+def _plan_tests(calibration, study: LightStudy) -> pd.DataFrame:
+    """The test runs (:func:`test_index`) that the calibration runs' choices call for."""
+    return test_index(best_pipelines(choose_exposures(calibration_table(calibration, study))), study)
 
 
 def run_study(study: LightStudy, out, *, store=None, executor=None, jobs=None, progress=True, clips=True) -> dict:
     """``gimbal-lab run light``: the calibration runs, the choices, the test runs (reusing ``store``)
     and the report in ``out/light``. ``clips`` is accepted for the command's uniformity; the map
     writes none."""
-    from pathlib import Path
-
-    from ..outputs import ReportFolder
     from . import report as _report
 
-    ReportFolder(Path(out) / NAME, "the report folder").check()  # before the calibration runs
-    from ..runner import run
+    def plan(calibration):
+        index = _plan_tests(calibration, study)
+        return index, test_configs(index, study)
 
-    calibration = run(grid(study), store=store, executor=executor, jobs=jobs, progress=progress,
-                      desc="light map: calibration")
-    index = test_index(best_pipelines(choose_exposures(calibration_table(calibration, study))), study)
-
-    def report(test_results, params):
-        return make_report(calibration, index, test_results, params)
-
-    return _report.run_and_report(NAME, "light map: test", test_configs(index, study), report, study, out,
-                                  store=store, executor=executor, jobs=jobs, progress=progress)
+    return _report.run_with_choices(NAME, "light map", grid(study), plan, make_report, study, out, store=store,
+                                    executor=executor, jobs=jobs, progress=progress)

@@ -289,6 +289,30 @@ def run_and_report(name: str, desc: str, configs, make_report, study, out, *, st
             "kept": folder.kept}
 
 
+def run_with_choices(name: str, label: str, calibration_configs, plan_tests, make_report, study, out, *,
+                     store=None, executor=None, jobs=None, progress=True) -> dict:
+    """A study whose pipelines choose on calibration runs before it tests them: the calibration
+    runs, ``plan_tests(calibration_results)`` → (the test runs' index, their configs), then the
+    test runs and the report, as :func:`run_and_report` writes it, in ``out/name``.
+
+    ``make_report(calibration_results, index, test_results, study)`` returns the :class:`Report`.
+    The report folder is checked before the calibration runs; progress bars read "LABEL:
+    calibration" and "LABEL: test"."""
+    from ..outputs import ReportFolder
+    from ..runner import run
+
+    ReportFolder(Path(out) / name, "the report folder").check()  # before the calibration runs
+    calibration = run(calibration_configs, store=store, executor=executor, jobs=jobs, progress=progress,
+                      desc=f"{label}: calibration")
+    index, test_configs = plan_tests(calibration)
+
+    def report(test_results, params):
+        return make_report(calibration, index, test_results, params)
+
+    return run_and_report(name, f"{label}: test", test_configs, report, study, out, store=store, executor=executor,
+                          jobs=jobs, progress=progress)
+
+
 def summary_lines(verdicts, claims_path, most: int = SUMMARY_ROWS) -> list[str]:
     """The terminal's summary of a report: the tally of the verdicts at both levels, up to ``most``
     conditions that do not hold or are inconclusive (one line each), and where ``claims.md`` is."""
