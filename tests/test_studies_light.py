@@ -24,6 +24,15 @@ def test_factors_map_their_ranges_log_uniform_where_said():
     assert vib.value(0.5) == pytest.approx(0.25) and vib.value(1.0) == pytest.approx(0.5)
     with pytest.raises(ValueError, match="light_lux"):
         light.value(1.5)
+    # the maps share one Factor: an integer factor cannot also be log-uniform, nor a log one reach 0
+    from gimbal_lab.studies.payoff import Factor
+
+    with pytest.raises(ValueError, match="integer or log-uniform"):
+        Factor("n", 1, 8, "", "n", integer=True, log=True)
+    for low in (0.0, -1.0):
+        with pytest.raises(ValueError, match="0 < low < high"):
+            Factor("x", low, 10.0, "", "x", log=True)
+    assert Factor("n", 1, 3, "", "n", integer=True).value(0.99) == 3.0  # the last level's share ends at u = 1
 
 
 def test_design_hits_every_stratum_once_and_stays_in_range():

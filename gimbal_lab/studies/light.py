@@ -43,11 +43,11 @@ from ..config import Camera, Estimator, Platform, Pointing, Target, TrackingConf
 from ..platform import Vibration
 from ._params import StudyParams, format_p, md_cell, verdict_counts
 from .paper import replicate_phase_s
-from .payoff import measured_frames
+from .payoff import Factor, design_table, measured_frames
 
-__all__ = ["Factor", "FACTORS", "FACTOR_NAMES", "PIPELINES", "ACTIVE", "PASSIVE", "CLAIM", "LightStudy", "Study",
+__all__ = ["Factor", "FACTORS", "FACTOR_NAMES", "PIPELINES", "ACTIVE", "PASSIVE", "CLAIM", "ChoiceStudyParams", "LightStudy", "Study",
            "design", "cone_for_rate", "point_config", "calibration_index", "grid", "all_configs", "run_errors",
-           "calibration_table", "choose_exposures", "best_pipelines", "test_index", "test_configs",
+           "choice_table", "calibration_table", "choose_exposures", "best_pipelines", "test_index", "test_configs",
            "response_table", "point_verdicts", "shortest_exposure_s", "streak_covariate_px", "Boundary",
            "fit_logistic", "fit_boundary", "rank_factors", "analyse", "make_report", "run_study"]
 
@@ -65,31 +65,6 @@ MIN_REVOLUTIONS = 0.25
 #: The fewest points the map accepts (SALib's rbd_fast with M = 2 bootstraps on half of them; below
 #: 12 its interval collapses: docs/design.md, "The payoff map").
 MIN_POINTS = 12
-
-
-@dataclass(frozen=True)
-class Factor:
-    """One of the map's five factors: its name, range, unit, and whether it is sampled on a log scale.
-
-    A point's value at unit coordinate u ∈ [0, 1] is ``low + (high − low)·u`` (linear) or
-    ``low·(high/low)^u`` (log-uniform).
-    """
-
-    name: str
-    low: float
-    high: float
-    unit: str
-    label: str
-    log: bool = False
-
-    def value(self, u):
-        """The factor's value(s) at unit coordinate(s) ``u`` (array_like in [0, 1])."""
-        u = np.asarray(u, float)
-        if not np.all(np.isfinite(u)) or np.any((u < 0.0) | (u > 1.0)):
-            raise ValueError(f"{self.name}: unit coordinates must lie in [0, 1], got {u!r}")
-        if self.log:
-            return self.low * (self.high / self.low) ** u
-        return self.low + (self.high - self.low) * u
 
 
 #: The five factors (docs/design.md, "Exposure as a choice, and a buying rule": fixed before its runs).
@@ -254,15 +229,8 @@ Study = LightStudy
 def design(study: LightStudy | None = None) -> pd.DataFrame:
     """The map's points: ``point``, each factor's unit coordinate ``u_NAME`` and its value ``NAME``,
     and the cone the rate maps to (``half_angle_deg``, ``period_s``)."""
-    from .payoff import unit_design
-
     study = study or LightStudy()
-    u = unit_design(study.points, study.design_seed, k=len(FACTORS))
-    table = pd.DataFrame({"point": np.arange(study.points)})
-    for j, f in enumerate(FACTORS):
-        table[f"u_{f.name}"] = u[:, j]
-    for j, f in enumerate(FACTORS):
-        table[f.name] = f.value(u[:, j])
+    table = design_table(FACTORS, study.points, study.design_seed)
     cones = [cone_for_rate(w, study.period_s) for w in table["rate_rad_s"]]
     table["half_angle_deg"] = [math.degrees(a) for a, _ in cones]
     table["period_s"] = [t for _, t in cones]

@@ -32,7 +32,7 @@ from . import report as _report
 from ._params import StudyParams, format_p, md_cell, verdict_counts
 from .paper import PIPELINES, replicate_phase_s
 
-__all__ = ["Factor", "FACTORS", "PIPELINES", "CLAIMS", "PayoffStudy", "unit_design", "design", "point_config",
+__all__ = ["Factor", "FACTORS", "PIPELINES", "CLAIMS", "PayoffStudy", "unit_design", "design_table", "design", "point_config",
            "grid", "all_configs", "run_index", "common_frame_errors", "response_table", "point_verdicts",
            "rank_factors", "Surface", "fit_surface", "make_report", "run_study"]
 
@@ -43,10 +43,12 @@ DESCRIPTION = ("the payoff map: where active beats the best passive camera over 
 
 @dataclass(frozen=True)
 class Factor:
-    """One of the scene's choices the map samples: its name, range and unit.
+    """One of the scene's choices a map samples (this one and :mod:`gimbal_lab.studies.light`):
+    its name, range and unit.
 
     A point's value is ``low + (high − low)·u`` for its unit coordinate u ∈ [0, 1); an integer
-    factor takes ``low + ⌊(high − low + 1)·u⌋``, every level an equal share of the interval.
+    factor takes ``low + ⌊(high − low + 1)·u⌋``, every level an equal share of the interval; a
+    log-uniform one ``low·(high/low)^u``.
     """
 
     name: str
@@ -55,6 +57,13 @@ class Factor:
     unit: str
     label: str
     integer: bool = False
+    log: bool = False
+
+    def __post_init__(self):
+        if self.integer and self.log:
+            raise ValueError(f"{self.name}: a factor is integer or log-uniform, not both")
+        if self.log and not 0.0 < self.low < self.high:
+            raise ValueError(f"{self.name}: a log-uniform factor needs 0 < low < high, got {self.low!r}, {self.high!r}")
 
     def value(self, u):
         """The factor's value(s) at unit coordinate(s) ``u`` (array_like in [0, 1])."""
@@ -64,6 +73,8 @@ class Factor:
         if self.integer:
             levels = int(self.high - self.low) + 1
             return self.low + np.minimum(np.floor(levels * u), levels - 1)
+        if self.log:
+            return self.low * (self.high / self.low) ** u
         return self.low + (self.high - self.low) * u
 
 
@@ -164,16 +175,22 @@ def unit_design(points: int, seed: int, k: int = len(FACTORS)) -> np.ndarray:
     return np.asarray(latin.sample(_problem(k), int(points), seed=int(seed)), float)
 
 
+def design_table(factors, points: int, seed: int) -> pd.DataFrame:
+    """A map's points from :func:`unit_design`: ``point``, each factor's unit coordinate ``u_NAME``
+    and its value ``NAME`` (every ``u_`` column first)."""
+    u = unit_design(points, seed, k=len(factors))
+    table = pd.DataFrame({"point": np.arange(points)})
+    for j, f in enumerate(factors):
+        table[f"u_{f.name}"] = u[:, j]
+    for j, f in enumerate(factors):
+        table[f.name] = f.value(u[:, j])
+    return table
+
+
 def design(study: PayoffStudy | None = None) -> pd.DataFrame:
     """The map's points: ``point``, each factor's unit coordinate ``u_NAME`` and its value ``NAME``."""
     study = study or PayoffStudy()
-    u = unit_design(study.points, study.design_seed)
-    table = pd.DataFrame({"point": np.arange(study.points)})
-    for j, f in enumerate(FACTORS):
-        table[f"u_{f.name}"] = u[:, j]
-    for j, f in enumerate(FACTORS):
-        table[f.name] = f.value(u[:, j])
-    return table
+    return design_table(FACTORS, study.points, study.design_seed)
 
 
 def point_config(values, pipeline: str, seed: int, study: PayoffStudy | None = None) -> TrackingConfig:
