@@ -14,11 +14,7 @@ rates are −q̇_yaw and q̇_pitch. Time bounds are liveness bounds.
 from __future__ import annotations
 
 import math
-import select
-import socket
-import threading
 import time
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -26,6 +22,7 @@ import pytest
 pytest.importorskip("pymavlink")
 
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
+from _loopback_gimbal import LoopbackGimbal, running  # noqa: E402  (tests/_loopback_gimbal.py)
 
 from gimbal_lab.camera import Intrinsics  # noqa: E402
 from gimbal_lab.mavlink import frames  # noqa: E402
@@ -37,30 +34,32 @@ YAW_RAD, PITCH_RAD = 0.2, -0.1  # the device's attitude: yaw right 0.2 rad, pitc
 DRIVER = (1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER)
 
 
-class FakeVehicle:
-    """A gimbal device and its manager on one loopback UDP socket (class docstring of the module).
-    ``manager_component``: 1 (an autopilot's manager) or 154 (built into the device); None: no
-    manager. ``refuse``: the manager denies every CONFIGURE. ``managed``: the gimbal_device_id its
-    status names (another device's for a manager that is not this gimbal's)."""
+class FakeVehicle(LoopbackGimbal):
+    """A gimbal device and its manager on one loopback UDP socket (class docstring of the module;
+    the device is tests/_loopback_gimbal.py's). ``manager_component``: 1 (an autopilot's manager)
+    or 154 (built into the device); None: no manager. ``refuse``: the manager denies every
+    CONFIGURE. ``managed``: the gimbal_device_id its status names (another device's for a manager
+    that is not this gimbal's)."""
+
+    MANAGER_STATUS_S = 0.2
 
     def __init__(self, manager_component=1, refuse=False, managed=mavlink.MAV_COMP_ID_GIMBAL):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.address = f"udpout:127.0.0.1:{self.sock.getsockname()[1]}"
-        self.peer, self.stop = None, threading.Event()
-        self.device = mavlink.MAVLink(self, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_GIMBAL)
+        super().__init__()
         self.manager_component, self.refuse, self.managed = manager_component, refuse, managed
         self.manager = None if manager_component is None else mavlink.MAVLink(self, 1, manager_component)
         self.primary = (0, 0)
         self.pitchyaw = []  # (message, sender in control?)
-        self.device_commands = []  # GIMBAL_DEVICE_SET_ATTITUDE
         self.configures = []  # COMMAND_LONG CONFIGURE
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
+        self.next_manager = self.start_s
+        self.q = frames.quaternion_from_euler(YAW_RAD, PITCH_RAD, 0.0)
 
-    def write(self, data: bytes) -> None:
-        if self.peer is not None:
-            self.sock.sendto(data, self.peer)
+    @property
+    def device_commands(self) -> list:
+        """Every GIMBAL_DEVICE_SET_ATTITUDE."""
+        return self.commands
+
+    def quaternion(self):
+        return self.q
 
     def _command(self, msg, sender) -> None:
         if msg.command != mavlink.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE:
@@ -76,52 +75,25 @@ class FakeVehicle:
             self.primary = (int(msg.param1), int(msg.param2))
         self.manager.send(mavlink.MAVLink_command_ack_message(msg.command, result, 0, 0, sender[0], sender[1]))
 
-    def _run(self) -> None:
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
-        start = next_heartbeat = next_status = next_manager = time.monotonic()
-        q = frames.quaternion_from_euler(YAW_RAD, PITCH_RAD, 0.0)
-        while not self.stop.is_set():
-            if select.select([self.sock], [], [], 0.005)[0]:
-                data, self.peer = self.sock.recvfrom(65535)
-                for msg in parser.parse_buffer(data) or ():
-                    kind, sender = msg.get_type(), (msg.get_srcSystem(), msg.get_srcComponent())
-                    if kind == "GIMBAL_DEVICE_SET_ATTITUDE":
-                        self.device_commands.append(msg)
-                    elif self.manager is not None and kind == "COMMAND_LONG" and msg.target_component in (
-                            0, self.manager_component):
-                        self._command(msg, sender)
-                    elif (self.manager is not None and kind == "GIMBAL_MANAGER_SET_PITCHYAW"
-                          and msg.target_component == self.manager_component):
-                        self.pitchyaw.append((msg, sender == self.primary))
-            now = time.monotonic()
-            if now >= next_heartbeat:
-                next_heartbeat = now + 0.1
-                self.device.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_AUTOPILOT_INVALID,
-                                                                   0, 0, mavlink.MAV_STATE_ACTIVE, 3))
-            if now >= next_status:
-                next_status = now + 0.02
-                self.device.send(mavlink.MAVLink_gimbal_device_attitude_status_message(
-                    0, 0, int(1000 * (now - start)), mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME,
-                    [float(v) for v in q], 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0))
-            if self.manager is not None and now >= next_manager:
-                next_manager = now + 0.2
-                self.manager.send(mavlink.MAVLink_gimbal_manager_status_message(
-                    int(1000 * (now - start)), 0, self.managed, *self.primary, 0, 0))
+    def received(self, msg) -> None:
+        kind, sender = msg.get_type(), (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind == "GIMBAL_DEVICE_SET_ATTITUDE":
+            self.commands.append(msg)
+        elif self.manager is not None and kind == "COMMAND_LONG" and msg.target_component in (0, self.manager_component):
+            self._command(msg, sender)
+        elif (self.manager is not None and kind == "GIMBAL_MANAGER_SET_PITCHYAW"
+              and msg.target_component == self.manager_component):
+            self.pitchyaw.append((msg, sender == self.primary))
 
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(LIVENESS_S)
-        self.sock.close()
+    def tick(self, now: float) -> None:
+        if self.manager is not None and now >= self.next_manager:
+            self.next_manager = now + self.MANAGER_STATUS_S
+            self.manager.send(mavlink.MAVLink_gimbal_manager_status_message(
+                self.boot_ms(now), 0, self.managed, *self.primary, 0, 0))
 
 
-@contextmanager
 def fake_vehicle(**kwargs):
-    vehicle = FakeVehicle(**kwargs)
-    try:
-        yield vehicle
-    finally:
-        vehicle.close()
+    return running(FakeVehicle(**kwargs))
 
 
 def wait_for(predicate):

@@ -9,12 +9,8 @@ Time bounds are liveness bounds, not speed measurements.
 
 from __future__ import annotations
 
-import math
-import select
 import socket
-import threading
 import time
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -22,77 +18,24 @@ import pytest
 pytest.importorskip("pymavlink")
 
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
+from _loopback_gimbal import LoopbackGimbal, running  # noqa: E402  (tests/_loopback_gimbal.py)
 
 from gimbal_lab.mavlink.driver import GimbalNotFound, MavlinkGimbal  # noqa: E402
 
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(1, 33))
 LIVENESS_S = 60.0
-EPOCH_2015_S = 1420070400.0  # the MAVLink signing time stamp counts 10 µs units from 2015-01-01 UTC
 
 
-class SignedFakeGimbal:
+class SignedFakeGimbal(LoopbackGimbal):
     """A gimbal device on a thread over loopback UDP, pymavlink's generated code and its stock
     signing (``key`` None: unsigned, accepting anything): HEARTBEAT every 0.1 s, a level attitude
     status every 0.02 s, each GIMBAL_DEVICE_SET_ATTITUDE it accepts kept in :attr:`commands`;
-    packets refused for their signature counted in :attr:`refused`."""
-
-    def __init__(self, key):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.address = f"udpout:127.0.0.1:{self.sock.getsockname()[1]}"
-        self.peer, self.commands, self.stop = None, [], threading.Event()
-        self.mav = mavlink.MAVLink(self, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_GIMBAL)
-        self.mav.robust_parsing = True
-        if key is not None:
-            self.mav.signing.secret_key = key
-            self.mav.signing.sign_outgoing = True
-            self.mav.signing.link_id = 0
-            self.mav.signing.timestamp = int((time.time() - EPOCH_2015_S) * 1e5)
-            self.mav.signing.allow_unsigned_callback = lambda mav, msg_id: False
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    @property
-    def refused(self) -> int:
-        return self.mav.signing.reject_count
-
-    def write(self, data: bytes) -> None:
-        if self.peer is not None:
-            self.sock.sendto(data, self.peer)
-
-    def _run(self) -> None:
-        start = next_heartbeat = next_status = time.monotonic()
-        while not self.stop.is_set():
-            if select.select([self.sock], [], [], 0.005)[0]:
-                data, self.peer = self.sock.recvfrom(65535)
-                for msg in self.mav.parse_buffer(data) or ():
-                    if msg.get_type() == "GIMBAL_DEVICE_SET_ATTITUDE":
-                        self.commands.append(msg)
-            now = time.monotonic()
-            if now >= next_heartbeat:
-                next_heartbeat = now + 0.1
-                self.mav.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_AUTOPILOT_INVALID,
-                                                                0, 0, mavlink.MAV_STATE_ACTIVE, 3))
-            if now >= next_status:
-                next_status = now + 0.02
-                self.mav.send(mavlink.MAVLink_gimbal_device_attitude_status_message(
-                    0, 0, int(1000 * (now - start)), mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME,
-                    [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0))
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(LIVENESS_S)
-        self.sock.close()
+    packets refused for their signature counted in :attr:`refused` (tests/_loopback_gimbal.py)."""
 
 
-@contextmanager
 def signed_fake(key):
-    fake = SignedFakeGimbal(key)
-    try:
-        yield fake
-    finally:
-        fake.close()
+    return running(SignedFakeGimbal(key))
 
 
 def key_file(tmp_path, key: bytes, name: str = "key.hex"):

@@ -28,6 +28,7 @@ import pytest
 
 pytest.importorskip("pymavlink")
 
+from _loopback_gimbal import LoopbackGimbal, running  # noqa: E402  (tests/_loopback_gimbal.py)
 from gimbal_lab import realworld as rw  # noqa: E402
 from gimbal_lab.camera import Intrinsics, project  # noqa: E402
 from gimbal_lab.calibration import save_calibration  # noqa: E402
@@ -329,68 +330,21 @@ BAD_ATTITUDES = {  # the quaternion a device sends, and what the stop must say
 }
 
 
-class FakeGimbal:
-    """A gimbal device on a thread of the test, over loopback UDP (pymavlink's generated code, not
-    the lab's device): a HEARTBEAT (MAV_TYPE_GIMBAL, component 154) every 0.1 s, and a
-    GIMBAL_DEVICE_ATTITUDE_STATUS every 0.02 s whose quaternion is ``attitude(k)`` once k
-    GIMBAL_DEVICE_SET_ATTITUDE commands have arrived (None: no status, the heartbeats go on). It
-    answers whoever spoke to it last and keeps every command (:attr:`commands`)."""
+class FakeGimbal(LoopbackGimbal):
+    """A gimbal device on a thread of the test, over loopback UDP (tests/_loopback_gimbal.py):
+    its GIMBAL_DEVICE_ATTITUDE_STATUS every 0.02 s reports ``attitude(k)`` once k
+    GIMBAL_DEVICE_SET_ATTITUDE commands have arrived (None: no status, the heartbeats go on)."""
 
     def __init__(self, attitude):
-        from pymavlink.dialects.v20 import common as mavlink
+        super().__init__()
+        self.attitude = attitude
 
-        self.mavlink, self.attitude = mavlink, attitude
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.address = f"udpout:127.0.0.1:{self.sock.getsockname()[1]}"
-        self.peer, self.commands, self.stop = None, [], threading.Event()
-        self.mav = mavlink.MAVLink(self, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_GIMBAL)
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def write(self, data: bytes) -> None:
-        if self.peer is not None:
-            self.sock.sendto(data, self.peer)
-
-    def _run(self) -> None:
-        import select
-
-        mavlink = self.mavlink
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
-        start = next_heartbeat = next_status = time.monotonic()
-        while not self.stop.is_set():
-            if select.select([self.sock], [], [], 0.005)[0]:
-                data, self.peer = self.sock.recvfrom(65535)
-                for msg in parser.parse_buffer(data) or ():
-                    if msg.get_type() == "GIMBAL_DEVICE_SET_ATTITUDE":
-                        self.commands.append(msg)
-            now = time.monotonic()
-            if now >= next_heartbeat:
-                next_heartbeat = now + 0.1
-                self.mav.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_AUTOPILOT_INVALID,
-                                                                0, 0, mavlink.MAV_STATE_ACTIVE, 3))
-            if now >= next_status:
-                next_status = now + 0.02
-                q = self.attitude(len(self.commands))
-                if q is not None:
-                    self.mav.send(self.mavlink.MAVLink_gimbal_device_attitude_status_message(
-                        0, 0, int(1000 * (now - start)), mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME,
-                        [float(v) for v in q], 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0))
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(LIVENESS_S)
-        self.sock.close()
+    def quaternion(self):
+        return self.attitude(len(self.commands))
 
 
-@contextmanager
 def fake_gimbal(attitude):
-    fake = FakeGimbal(attitude)
-    try:
-        yield fake
-    finally:
-        fake.close()
+    return running(FakeGimbal(attitude))
 
 
 def test_attitude_problem_at_each_seam():
