@@ -262,6 +262,22 @@ def test_shortest_exposure_matches_the_closed_form_either_side_of_each_threshold
     assert s["t_min_s"] == 0.004 and s["s_px"] == pytest.approx(0.5 * 554.2563 * 0.004, rel=1e-5)
 
 
+def test_full_well_light_matches_the_closed_form_and_clips_above_it():
+    from gimbal_lab.sensor import SensorModel
+
+    h, c, lam = 6.62607015e-34, 299_792_458.0, 555e-9
+    sat = round(10 ** (40.2 / 10))  # 10,471 e-
+    for t in (0.0005, 0.004, 0.0167):
+        per_lux = 0.65 * 0.9 / (4 * 2.8**2 * 683.0) * (3.45e-6) ** 2 * t * lam / (h * c)  # e- per lx (hand)
+        lux = L.full_well_lux(t)
+        assert lux == pytest.approx(sat / per_lux, rel=1e-9)
+        # just above it the auto-gain is held at K_min and a white pixel fills the well; just below it does not
+        for factor, fills in ((1.001, True), (0.999, False)):
+            model = SensorModel("IMX273", light_lux=lux * factor, f_number=2.8)
+            assert (model.electrons_at_full_reflectance(t) > model.figures.saturation_e) == fills
+    assert L.full_well_lux(0.0005) == pytest.approx(23_060, rel=1e-3)  # the shortest exposure of E
+
+
 # ----------------------------------------------------------------------------------------------
 # the boundary
 # ----------------------------------------------------------------------------------------------

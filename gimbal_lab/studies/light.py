@@ -48,7 +48,7 @@ from .payoff import Factor, design_table, measured_frames
 __all__ = ["Factor", "FACTORS", "FACTOR_NAMES", "PIPELINES", "ACTIVE", "PASSIVE", "CLAIM", "ChoiceStudyParams", "LightStudy", "Study",
            "design", "cone_for_rate", "point_config", "calibration_index", "grid", "all_configs", "run_errors",
            "choice_table", "calibration_table", "choose_exposures", "best_pipelines", "test_index", "test_configs",
-           "response_table", "point_verdicts", "shortest_exposure_s", "streak_covariate_px", "Boundary",
+           "response_table", "point_verdicts", "shortest_exposure_s", "full_well_lux", "streak_covariate_px", "Boundary",
            "fit_logistic", "fit_boundary", "rank_factors", "analyse", "make_report", "run_study"]
 
 NAME = "light"
@@ -497,6 +497,18 @@ def shortest_exposure_s(light_lux: float, exposures_s, sensor: str = "IMX273", f
         if 255.0 / model.electrons_at_full_reflectance(t) <= k_max:
             return t
     return math.nan
+
+
+def full_well_lux(exposure_s: float, sensor: str = "IMX273", f_number: float = 2.8) -> float:
+    """The light, lx, above which a pixel of reflectance 1 collects more than the full well over
+    ``exposure_s`` (η·μ_p = μ_e.sat). Brighter, the auto-gain is at K_min and the frame is brighter
+    than rendered: every pixel of reflectance above (this light / the scene's) clips
+    (docs/design.md, "Sensor and light"). η·μ_p is linear in the light, so this is μ_e.sat over
+    the electrons one lux gives."""
+    from ..sensor import SensorModel
+
+    model = SensorModel(sensor, light_lux=1.0, f_number=float(f_number))
+    return float(model.figures.saturation_e / model.electrons_at_full_reflectance(float(exposure_s)))
 
 
 def streak_covariate_px(design_table: pd.DataFrame, study: LightStudy | None = None) -> pd.DataFrame:
