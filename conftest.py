@@ -135,10 +135,11 @@ def _is_notebook(item) -> bool:
 # ----------------------------------------------------------------------------------------------
 #: Wall seconds of the notebooks that take more than a minute under the suite, measured on a clean
 #: clone on the 2-core test machine at light load (2026-12-02; 07 and 08 share their paper runs and
-#: run as one unit on one worker; 15, 16 and 17 estimated on 2026-12-07 from their runs under pytest
-#: alone, at their shorter test runs). Used only to order the run; any other notebook counts as 20 s.
+#: run as one unit on one worker; 15, 16 and 17 estimated on 2026-12-07, 16 again on 2026-12-08, from
+#: their runs under pytest alone at their shorter test runs). Used only to order the run; any other
+#: notebook counts as 20 s.
 NOTEBOOK_SECONDS = {"09_moving-drone-and-motion-blur.ipynb": 300, "10_lens-sweep-and-fisheye.ipynb": 255,
-                    "16_should-i-buy-a-gimbal.ipynb": 230, "17_the-moving-drone-picks-its-exposure.ipynb": 170,
+                    "16_should-i-buy-a-gimbal.ipynb": 195, "17_the-moving-drone-picks-its-exposure.ipynb": 170,
                     "15_when-does-a-gimbal-pay-off.ipynb": 160, "11_occlusion-and-tracking-filters.ipynb": 80,
                     ("07_active-vs-passive-sphere.ipynb", "08_active-vs-passive-aruco.ipynb"): 255}
 

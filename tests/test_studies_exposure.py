@@ -51,8 +51,8 @@ def test_parameters_are_checked_and_seeds_kept_apart():
         X.ExposureStudy(calibration_seeds=(100, 201))
     with pytest.raises(ValueError, match="exposures_ms"):
         X.ExposureStudy(exposures_ms=(1.0, 40.0))
-    with pytest.raises(ValueError, match=r"revolutions must be >= 0.25"):
-        X.ExposureStudy(revolutions=0.2)
+    with pytest.raises(ValueError, match=r"revolutions must be >= 0\.2 and"):
+        X.ExposureStudy(revolutions=0.19)
     with pytest.raises(ValueError, match="replicates"):
         X.ExposureStudy(replicates=1)
     with pytest.raises(ValueError, match="pipeline must be one of"):

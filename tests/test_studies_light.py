@@ -112,12 +112,13 @@ def test_study_refuses_what_cannot_be_the_design():
     assert len(L.grid(L.LightStudy())) == 40 * 6 * 2 * 4
 
 
-def test_study_accepts_a_quarter_revolution_and_refuses_less():
-    short = L.LightStudy(points=12, calibration_seeds=(100,), replicates=2, exposures_ms=(1.0, 16.7), revolutions=0.25)
-    assert short.revolutions == 0.25 and L.LightStudy().revolutions == 2.0
-    assert {c.revolutions for c in L.grid(short)} == {0.25} and len(L.grid(short)) == 12 * 2 * 1 * 4
-    for bad in (0.249, 0.0, -1.0):
-        with pytest.raises(ValueError, match=r"revolutions must be >= 0.25"):
+def test_study_accepts_a_fifth_of_a_revolution_and_refuses_less():
+    short = L.LightStudy(points=12, calibration_seeds=(100,), replicates=2, exposures_ms=(1.0, 16.7), revolutions=0.2)
+    assert short.revolutions == 0.2 and L.LightStudy().revolutions == 2.0
+    assert {c.revolutions for c in L.grid(short)} == {0.2} and len(L.grid(short)) == 12 * 2 * 1 * 4
+    assert {c.n_frames for c in L.grid(short) if c.target.period_s == 2.0} == {12}  # notebook 16's runs at 30 fps
+    for bad in (0.199, 0.0, -1.0):
+        with pytest.raises(ValueError, match=r"revolutions must be >= 0\.2 and"):
             L.LightStudy(revolutions=bad)
     for bad in (math.nan, math.inf):
         with pytest.raises(ValueError, match="revolutions"):

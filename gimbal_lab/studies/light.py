@@ -58,9 +58,9 @@ DESCRIPTION = ("the buying rule: where a gimbal pays when every pipeline picks i
 #: The widest cone the map draws, rad: a faster target keeps it and circles with a shorter period.
 MAX_HALF_ANGLE_RAD = math.radians(20.0)
 
-#: The fewest revolutions per run the map accepts: a quarter revolution, notebook 16's size under
+#: The fewest revolutions per run the map accepts: a fifth of a revolution, notebook 16's size under
 #: pytest (docs/design.md, "Exposure as a choice, and a buying rule", As built); the full size keeps two.
-MIN_REVOLUTIONS = 0.25
+MIN_REVOLUTIONS = 0.2
 
 #: The fewest points the map accepts (SALib's rbd_fast with M = 2 bootstraps on half of them; below
 #: 12 its interval collapses: docs/design.md, "The payoff map").
