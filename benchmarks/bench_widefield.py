@@ -21,14 +21,13 @@ import argparse
 import math
 import time
 
-import numpy as np
 
 from gimbal_lab.camera import Intrinsics, KannalaBrandt
 from gimbal_lab.scene import SceneRenderer
 from gimbal_lab.trajectories import Trajectory
 from gimbal_lab.widefield import WideFieldRenderer
 
-from bench_render import FRAME_DT_S, T_WORLD_CAM, _interleaved_medians_ms, _pose_fn  # noqa: E402 (same folder)
+from bench_render import FRAME_DT_S, _interleaved_medians_ms, _pose_fn  # noqa: E402 (same folder)
 
 FISHEYE_HFOV_DEG = (120.0, 150.0, 185.0)
 

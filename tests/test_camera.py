@@ -161,7 +161,7 @@ def test_wrong_shapes_raise(bad):
 
 
 # --- Kannala–Brandt fisheye ---------------------------------------------------------------------
-from gimbal_lab.camera import KannalaBrandt, UndistortionError, backproject, distort, undistort  # noqa: E402
+from gimbal_lab.camera import KannalaBrandt  # noqa: E402
 
 FISHEYE = KannalaBrandt(k1=-0.013, k2=-0.0053, k3=0.0014, k4=-0.0002)  # a stated mild fisheye (not a calibration)
 FISH_K = Intrinsics(width=640, height=480, fx=204.0, fy=204.0, cx=319.5, cy=239.5)

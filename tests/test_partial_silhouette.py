@@ -23,7 +23,6 @@ from gimbal_lab.detection import (
     SphereDetection,
     SphereDetector,
     arc_points,
-    locate_sphere_circle,
     locate_sphere_ellipse,
     sphere_silhouette_px,
 )
